@@ -1,0 +1,85 @@
+"""`cc-daemon decode`: turn frames into lines a person can read.
+
+Input is hex on the command line, a byte stream on stdin (raw bytes, or hex
+text with `--hex`), or a live serial line (`--port`). Output is one line per
+frame or per error, plain or JSON. The exit status says whether any corrupt
+frame was found: 0 clean, 1 errors found.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from collections.abc import Iterable, Iterator
+from typing import IO, Any
+
+from cc_daemon.protocol import CorruptFrame, Message, Parser, Sender, as_dict
+
+_HEX_TOKEN = re.compile(r"(?:0[xX])?([0-9A-Fa-f]{2})")
+_SEPARATORS = re.compile(r"[\s,:;]+")
+
+
+class HexInputError(ValueError):
+    """Hex text that is not hex."""
+
+
+def parse_hex(text: str) -> bytes:
+    """`"50 53 00 48 00 EB"`, `"505300480 0EB"`, `"0x50,0x53"` -> bytes."""
+    out = bytearray()
+    for token in _SEPARATORS.split(text.strip()):
+        if not token:
+            continue
+        body = token[2:] if token[:2] in ("0x", "0X") else token
+        if len(body) % 2 or not all(c in "0123456789abcdefABCDEF" for c in body):
+            raise HexInputError(f"not hex bytes: {token!r}")
+        out += bytes.fromhex(body)
+    return bytes(out)
+
+
+def format_event(event: Message | CorruptFrame, *, as_json: bool) -> str:
+    if isinstance(event, CorruptFrame):
+        if as_json:
+            return json.dumps({"error": str(event.kind), "bytes": event.hex(), "detail": event.detail})
+        return f"ERROR {event.kind}: {event.hex()} ({event.detail})"
+    fields: dict[str, Any] = as_dict(event)
+    if as_json:
+        return json.dumps(fields)
+    name = fields.pop("frame")
+    text = " ".join(f"{key}={value}" for key, value in fields.items())
+    if hasattr(event, "lat_deg"):
+        text += f"  ({event.lat_deg:.7f}, {event.lon_deg:.7f})"  # type: ignore[union-attr]
+    return f"{name} {text}"
+
+
+def decode_chunks(
+    chunks: Iterable[bytes], *, accept_g_alias: bool = False
+) -> Iterator[Message | CorruptFrame]:
+    """Every frame and error in a stream, in order, ending with any truncated frame."""
+    parser = Parser(Sender.BOTH, accept_g_alias=accept_g_alias)
+    for chunk in chunks:
+        yield from parser.events(chunk)
+    leftover = parser.close()
+    if leftover is not None:
+        yield leftover
+
+
+def read_stdin_chunks(stream: IO[bytes], *, hex_text: bool) -> Iterator[bytes]:
+    if hex_text:
+        for line in stream:
+            yield parse_hex(line.decode("ascii", "replace"))
+    else:
+        while chunk := stream.read1(4096) if hasattr(stream, "read1") else stream.read(4096):
+            yield chunk
+
+
+def print_events(
+    events: Iterable[Message | CorruptFrame], *, as_json: bool, out: IO[str] = sys.stdout
+) -> int:
+    """Print each event; return 1 if any was an error, else 0."""
+    status = 0
+    for event in events:
+        if isinstance(event, CorruptFrame):
+            status = 1
+        print(format_event(event, as_json=as_json), file=out, flush=True)
+    return status

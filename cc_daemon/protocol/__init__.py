@@ -1,0 +1,47 @@
+"""The autopilot <-> companion-computer wire protocol, sans-IO.
+
+Import from here: messages (`Telemetry`, `StartMeasuring`, ...), `encode`, and
+the streaming `Parser`. Nothing in this package does I/O, sleeps or reads a
+clock.
+"""
+
+from cc_daemon.protocol.frames import FrameType, Sync, checksum, encode
+from cc_daemon.protocol.messages import (
+    MESSAGE_TYPES,
+    Ack,
+    AutopilotMessage,
+    CcMessage,
+    DepthReport,
+    Finished,
+    Message,
+    ProbePosition,
+    ProbePositionRequest,
+    StartMeasuring,
+    Telemetry,
+    as_dict,
+)
+from cc_daemon.protocol.parser import CorruptFrame, ErrorKind, Parser, ParserStats, Sender
+
+__all__ = [
+    "MESSAGE_TYPES",
+    "Ack",
+    "AutopilotMessage",
+    "CcMessage",
+    "CorruptFrame",
+    "DepthReport",
+    "ErrorKind",
+    "Finished",
+    "FrameType",
+    "Message",
+    "Parser",
+    "ParserStats",
+    "ProbePosition",
+    "ProbePositionRequest",
+    "Sender",
+    "StartMeasuring",
+    "Sync",
+    "Telemetry",
+    "as_dict",
+    "checksum",
+    "encode",
+]

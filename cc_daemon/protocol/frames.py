@@ -1,0 +1,246 @@
+"""Frame layouts: the one place that knows each frame's bytes.
+
+    sync(1) type(1) timestamp(2) payload(0..19) checksum(2)
+
+Big-endian numbers; signed fields are a sign byte (00 / 01) plus a big-endian
+magnitude, never two's complement; the checksum is the sum of every preceding
+byte modulo 65536, most significant byte first. Altitude is decoded as sign +
+3-byte magnitude because the deployed firmware encodes it that way (identical
+bytes for every value the manual allows). See `shared/PROTOCOL.md`.
+
+This module is pure: `encode` builds bytes from a message, the `decode_*`
+functions build a message from a complete, checksum-verified frame inside a
+buffer and raise `FrameError("bad_field", ...)` on an invalid field.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from enum import IntEnum
+
+from cc_daemon.errors import FrameError
+from cc_daemon.protocol.messages import (
+    CONFIDENCE_MAX,
+    DEPTH_MM_WIRE_MAX,
+    LAT_E7_MAX,
+    LON_E7_MAX,
+    TIMESTAMP_WIRE_MOD,
+    Ack,
+    DepthReport,
+    Finished,
+    Message,
+    ProbePosition,
+    ProbePositionRequest,
+    StartMeasuring,
+    Telemetry,
+)
+
+
+class Sync(IntEnum):
+    """First byte of a frame: who sent it."""
+
+    AUTOPILOT = 0x50  # "P", Paparazzi
+    CC = 0x52  # "R", Raspberry Pi
+
+
+class FrameType(IntEnum):
+    """Second byte of a frame. With the sync byte it fixes the frame's length."""
+
+    TELEMETRY = 0x54  # "T"
+    START_MEASURING = 0x4D  # "M"
+    START_MEASURING_G = 0x47  # "G": one firmware revision's start-measuring byte
+    PROBE_REQUEST = 0x53  # "S"
+    ACK = 0x4F  # "O"
+    DEPTH = 0x4D  # "M" (from the CC)
+    FINISHED = 0x46  # "F"
+    PROBE_POSITION = 0x50  # "P" (from the CC)
+
+
+MIN_FRAME_LENGTH = 6
+MAX_FRAME_LENGTH = 25
+
+# Layouts without the trailing checksum (verified separately, before decoding).
+# Position frames: sync, type, time, lon sign+mag, lat sign+mag,
+# alt sign + high byte + low 16 bits, sonar u32, confidence.
+POSITION = struct.Struct(">BBHBIBIBBHIB")
+TIMESTAMP_ONLY = struct.Struct(">BBH")
+WITH_DEPTH = struct.Struct(">BBHH")
+CHECKSUM = struct.Struct(">H")
+
+POSITION_LENGTH = POSITION.size + 2  # 25
+TIMESTAMP_ONLY_LENGTH = TIMESTAMP_ONLY.size + 2  # 6
+WITH_DEPTH_LENGTH = WITH_DEPTH.size + 2  # 8
+
+
+def checksum(data: bytes | bytearray | memoryview) -> int:
+    """The protocol checksum of `data`: the sum of its bytes modulo 65536."""
+    return sum(data) & 0xFFFF
+
+
+def _with_checksum(body: bytes) -> bytes:
+    return body + CHECKSUM.pack(sum(body) & 0xFFFF)
+
+
+def _sign_magnitude(value: int) -> tuple[int, int]:
+    return (1, -value) if value < 0 else (0, value)
+
+
+# ---------------------------------------------------------------- encoding
+
+
+def _encode_position(message: Telemetry | StartMeasuring, type_byte: int) -> bytes:
+    lon_sign, lon = _sign_magnitude(message.lon_e7)
+    lat_sign, lat = _sign_magnitude(message.lat_e7)
+    alt_sign, alt = _sign_magnitude(message.alt_mm)
+    return _with_checksum(
+        POSITION.pack(
+            Sync.AUTOPILOT,
+            type_byte,
+            message.timestamp_s % TIMESTAMP_WIRE_MOD,
+            lon_sign,
+            lon,
+            lat_sign,
+            lat,
+            alt_sign,
+            alt >> 16,
+            alt & 0xFFFF,
+            message.sonar_distance_mm,
+            message.sonar_confidence_pct,
+        )
+    )
+
+
+def _encode_timestamp_only(sync: int, type_byte: int, timestamp_s: int) -> bytes:
+    return _with_checksum(TIMESTAMP_ONLY.pack(sync, type_byte, timestamp_s % TIMESTAMP_WIRE_MOD))
+
+
+def _encode_depth(type_byte: int, timestamp_s: int, depth_mm: int) -> bytes:
+    return _with_checksum(
+        WITH_DEPTH.pack(
+            Sync.CC,
+            type_byte,
+            timestamp_s % TIMESTAMP_WIRE_MOD,
+            min(depth_mm, DEPTH_MM_WIRE_MAX),  # saturates, never wraps
+        )
+    )
+
+
+def encode(message: Message, *, start_type: int = FrameType.START_MEASURING) -> bytes:
+    """The frame for `message`. `start_type` lets a test or simulator send `G`."""
+    match message:
+        case Telemetry():
+            return _encode_position(message, FrameType.TELEMETRY)
+        case StartMeasuring():
+            return _encode_position(message, start_type)
+        case ProbePositionRequest():
+            return _encode_timestamp_only(Sync.AUTOPILOT, FrameType.PROBE_REQUEST, message[0])
+        case Ack():
+            return _encode_timestamp_only(Sync.CC, FrameType.ACK, message[0])
+        case DepthReport():
+            return _encode_depth(FrameType.DEPTH, message[0], message[1])
+        case Finished():
+            return _encode_depth(FrameType.FINISHED, message[0], message[1])
+        case ProbePosition():
+            return _encode_depth(FrameType.PROBE_POSITION, message[0], message[1])
+    raise TypeError(f"not a protocol message: {message!r}")
+
+
+# ---------------------------------------------------------------- decoding
+
+# A decoder takes the buffer and the frame's start, and returns the message.
+Decoder = Callable[[bytes | bytearray, int], Message]
+
+_new = tuple.__new__  # the parser validated the fields; skip the per-field checks
+
+
+def _position_decoder(cls: type[Telemetry] | type[StartMeasuring]) -> Decoder:
+    unpack_from = POSITION.unpack_from
+
+    def decode(buf: bytes | bytearray, start: int) -> Message:
+        (_, _, ts, lon_s, lon, lat_s, lat, alt_s, alt_hi, alt_lo, sonar, conf) = unpack_from(
+            buf, start
+        )
+        if lon_s > 1 or lat_s > 1 or alt_s > 1 or lon > LON_E7_MAX or lat > LAT_E7_MAX:
+            raise FrameError("bad_field", _position_problem(lon_s, lon, lat_s, lat, alt_s))
+        if conf > CONFIDENCE_MAX:
+            raise FrameError("bad_field", f"sonar_confidence_pct={conf} is over 100")
+        alt = alt_hi << 16 | alt_lo
+        return _new(  # type: ignore[no-any-return]
+            cls,
+            (ts, -lon if lon_s else lon, -lat if lat_s else lat, -alt if alt_s else alt, sonar, conf),
+        )
+
+    return decode
+
+
+def _position_problem(lon_s: int, lon: int, lat_s: int, lat: int, alt_s: int) -> str:
+    for name, sign in (("lon_e7", lon_s), ("lat_e7", lat_s), ("alt_mm", alt_s)):
+        if sign > 1:
+            return f"{name} sign byte is 0x{sign:02X}, not 00 or 01"
+    if lon > LON_E7_MAX:
+        return f"lon_e7 magnitude {lon} is beyond 180 degrees"
+    return f"lat_e7 magnitude {lat} is beyond 90 degrees"
+
+
+def _timestamp_decoder(cls: type[ProbePositionRequest] | type[Ack]) -> Decoder:
+    def decode(buf: bytes | bytearray, start: int) -> Message:
+        return _new(cls, (buf[start + 2] << 8 | buf[start + 3],))  # type: ignore[no-any-return]
+
+    return decode
+
+
+def _depth_decoder(cls: type[DepthReport] | type[Finished] | type[ProbePosition]) -> Decoder:
+    def decode(buf: bytes | bytearray, start: int) -> Message:
+        return _new(  # type: ignore[no-any-return]
+            cls, (buf[start + 2] << 8 | buf[start + 3], buf[start + 4] << 8 | buf[start + 5])
+        )
+
+    return decode
+
+
+class Layout:
+    """How to recognise and decode one (sync, type) pair."""
+
+    __slots__ = ("decode", "length", "name")
+
+    def __init__(self, name: str, length: int, decode: Decoder) -> None:
+        self.name = name
+        self.length = length
+        self.decode = decode
+
+
+def _key(sync: int, type_byte: int) -> int:
+    return sync << 8 | type_byte
+
+
+AUTOPILOT_LAYOUTS: dict[int, Layout] = {
+    _key(Sync.AUTOPILOT, FrameType.TELEMETRY): Layout(
+        "P-T", POSITION_LENGTH, _position_decoder(Telemetry)
+    ),
+    _key(Sync.AUTOPILOT, FrameType.START_MEASURING): Layout(
+        "P-M", POSITION_LENGTH, _position_decoder(StartMeasuring)
+    ),
+    _key(Sync.AUTOPILOT, FrameType.PROBE_REQUEST): Layout(
+        "P-S", TIMESTAMP_ONLY_LENGTH, _timestamp_decoder(ProbePositionRequest)
+    ),
+}
+
+G_ALIAS_LAYOUT: dict[int, Layout] = {
+    _key(Sync.AUTOPILOT, FrameType.START_MEASURING_G): Layout(
+        "P-G", POSITION_LENGTH, _position_decoder(StartMeasuring)
+    ),
+}
+
+CC_LAYOUTS: dict[int, Layout] = {
+    _key(Sync.CC, FrameType.ACK): Layout("R-O", TIMESTAMP_ONLY_LENGTH, _timestamp_decoder(Ack)),
+    _key(Sync.CC, FrameType.DEPTH): Layout(
+        "R-M", WITH_DEPTH_LENGTH, _depth_decoder(DepthReport)
+    ),
+    _key(Sync.CC, FrameType.FINISHED): Layout(
+        "R-F", WITH_DEPTH_LENGTH, _depth_decoder(Finished)
+    ),
+    _key(Sync.CC, FrameType.PROBE_POSITION): Layout(
+        "R-P", WITH_DEPTH_LENGTH, _depth_decoder(ProbePosition)
+    ),
+}

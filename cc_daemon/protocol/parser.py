@@ -1,0 +1,249 @@
+"""The streaming frame parser: bytes in, messages out, never an exception.
+
+`Parser.feed` accepts any chunk of the byte stream (a whole capture, 4 KiB
+reads, one byte at a time) and returns the messages completed by it. Bad input
+never raises: a bad checksum, an unknown type byte after a sync byte or an
+invalid field is counted in `stats`, logged at debug with its raw bytes,
+handed to the `on_error` callback as a `CorruptFrame`, and the parser
+resynchronises at the next sync byte *after the failed frame's first byte*, so
+a valid frame that starts inside a corrupt one is still found.
+
+The buffer is bounded: between calls it holds less than one maximal frame
+(25 bytes), whatever was fed.
+
+Timestamps are information only: nothing here rejects, reorders or drops a
+frame because of its timestamp.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Flag, StrEnum
+from typing import NamedTuple
+
+import structlog
+
+from cc_daemon.errors import FrameError
+from cc_daemon.protocol.frames import (
+    AUTOPILOT_LAYOUTS,
+    CC_LAYOUTS,
+    G_ALIAS_LAYOUT,
+    MAX_FRAME_LENGTH,
+    Decoder,
+    Layout,
+    Sync,
+)
+from cc_daemon.protocol.messages import Message
+
+_log = structlog.get_logger("cc_daemon.protocol")
+
+
+class Sender(Flag):
+    """Whose frames a parser listens for."""
+
+    AUTOPILOT = 1  # sync "P"
+    CC = 2  # sync "R"
+    BOTH = AUTOPILOT | CC
+
+
+class ErrorKind(StrEnum):
+    BAD_CHECKSUM = "bad_checksum"
+    UNKNOWN_TYPE = "unknown_type"
+    BAD_FIELD = "bad_field"
+    TRUNCATED = "truncated"
+
+
+class CorruptFrame(NamedTuple):
+    """Bytes that looked like the start of a frame and were not one."""
+
+    kind: ErrorKind
+    data: bytes
+    detail: str
+
+    def hex(self) -> str:
+        return self.data.hex(" ").upper()
+
+
+@dataclass(slots=True)
+class ParserStats:
+    """Counters since the parser was made. Every byte fed ends up in exactly one
+    of: a decoded frame, `bytes_discarded`, or the pending buffer."""
+
+    frames_decoded: int = 0
+    bad_checksum: int = 0
+    unknown_type: int = 0
+    bad_field: int = 0
+    truncated: int = 0
+    bytes_received: int = 0
+    bytes_discarded: int = 0
+
+    @property
+    def errors(self) -> int:
+        return self.bad_checksum + self.unknown_type + self.bad_field + self.truncated
+
+
+ErrorCallback = Callable[[CorruptFrame], None]
+_SYNC_PATTERNS = {
+    Sender.AUTOPILOT: re.compile(b"P"),
+    Sender.CC: re.compile(b"R"),
+    Sender.BOTH: re.compile(b"[PR]"),
+}
+
+
+class Parser:
+    """A resynchronising parser for the autopilot link. See the module docstring."""
+
+    def __init__(
+        self,
+        senders: Sender = Sender.BOTH,
+        *,
+        accept_g_alias: bool = False,
+        on_error: ErrorCallback | None = None,
+    ) -> None:
+        layouts: dict[int, Layout] = {}
+        syncs: set[int] = set()
+        if Sender.AUTOPILOT in senders:
+            layouts.update(AUTOPILOT_LAYOUTS)
+            if accept_g_alias:
+                layouts.update(G_ALIAS_LAYOUT)
+            syncs.add(Sync.AUTOPILOT)
+        if Sender.CC in senders:
+            layouts.update(CC_LAYOUTS)
+            syncs.add(Sync.CC)
+        # Plain tuples: unpacking one is cheaper than two attribute loads per frame.
+        self._layouts: dict[int, tuple[int, Decoder]] = {
+            key: (layout.length, layout.decode) for key, layout in layouts.items()
+        }
+        self._syncs = frozenset(syncs)
+        self._search = _SYNC_PATTERNS[senders].search
+        self._buf = bytearray()
+        # How many buffered bytes the next parse needs to make progress: the
+        # pending frame's length once its type is known. Feeds that leave the
+        # buffer short of it only append, which keeps one-byte feeds cheap.
+        self._need = 2
+        self.on_error = on_error
+        self.stats = ParserStats()
+
+    @property
+    def pending(self) -> int:
+        """Bytes held waiting for the rest of a frame (always < 25)."""
+        return len(self._buf)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Message]:
+        """Add `data` to the stream; return the messages it completed, in order."""
+        buf = self._buf
+        buf += data
+        self.stats.bytes_received += len(data)
+        if len(buf) < self._need:
+            return []
+        out: list[Message] = []
+        self._parse(out, self._report)
+        return out
+
+    def events(self, data: bytes | bytearray | memoryview) -> list[Message | CorruptFrame]:
+        """Like `feed`, but corrupt frames come back too, in stream order."""
+        out: list[Message | CorruptFrame] = []
+
+        def report(error: CorruptFrame) -> None:
+            self._report(error)
+            out.append(error)
+
+        self._buf += data
+        self.stats.bytes_received += len(data)
+        self._parse(out, report)  # type: ignore[arg-type]
+        return out
+
+    def close(self) -> CorruptFrame | None:
+        """End of stream: report a partial frame left in the buffer as truncated."""
+        rest = bytes(self._buf)
+        self._buf.clear()
+        self._need = 2
+        if not rest:
+            return None
+        self.stats.bytes_discarded += len(rest)
+        error = CorruptFrame(
+            ErrorKind.TRUNCATED, rest, f"stream ended {len(rest)} bytes into a frame"
+        )
+        self._report(error)
+        return error
+
+    # ------------------------------------------------------------ internals
+
+    def _report(self, error: CorruptFrame) -> None:
+        stats = self.stats
+        if error.kind is ErrorKind.BAD_CHECKSUM:
+            stats.bad_checksum += 1
+        elif error.kind is ErrorKind.UNKNOWN_TYPE:
+            stats.unknown_type += 1
+        elif error.kind is ErrorKind.BAD_FIELD:
+            stats.bad_field += 1
+        else:
+            stats.truncated += 1
+        _log.debug("corrupt frame", kind=str(error.kind), bytes=error.hex(), detail=error.detail)
+        if self.on_error is not None:
+            self.on_error(error)
+
+    def _parse(self, out: list[Message], report: ErrorCallback) -> None:
+        buf = self._buf
+        end = len(buf)
+        get = self._layouts.get
+        syncs = self._syncs
+        pos = 0
+        stop = 0
+        decoded = 0
+        discarded = 0
+        while pos + 1 < end:
+            layout = get(buf[pos] << 8 | buf[pos + 1])
+            if layout is None:
+                if buf[pos] in syncs:
+                    report(
+                        CorruptFrame(
+                            ErrorKind.UNKNOWN_TYPE,
+                            bytes(buf[pos : pos + 2]),
+                            f"type byte 0x{buf[pos + 1]:02X} after sync {chr(buf[pos])!r}",
+                        )
+                    )
+                    discarded += 1
+                    pos += 1
+                    continue
+                found = self._search(buf, pos + 1)
+                nxt = end if found is None else found.start()
+                discarded += nxt - pos
+                pos = nxt
+                continue
+            length, decode = layout
+            stop = pos + length
+            if stop > end:
+                break  # wait for the rest of the frame
+            sent = buf[stop - 2] << 8 | buf[stop - 1]
+            if sum(buf[pos : stop - 2]) & 0xFFFF != sent:
+                report(
+                    CorruptFrame(
+                        ErrorKind.BAD_CHECKSUM,
+                        bytes(buf[pos:stop]),
+                        f"checksum 0x{sent:04X}, bytes sum to "
+                        f"0x{sum(buf[pos : stop - 2]) & 0xFFFF:04X}",
+                    )
+                )
+                discarded += 1
+                pos += 1
+                continue
+            try:
+                out.append(decode(buf, pos))
+            except FrameError as exc:
+                report(CorruptFrame(ErrorKind.BAD_FIELD, bytes(buf[pos:stop]), exc.detail))
+                discarded += 1
+                pos += 1
+                continue
+            decoded += 1
+            pos = stop
+        if pos == end - 1 and buf[pos] not in syncs:
+            discarded += 1  # a lone non-sync byte can never start a frame
+            pos = end
+        del buf[:pos]
+        assert len(buf) < MAX_FRAME_LENGTH
+        self._need = stop - pos if pos + 1 < end else 2
+        self.stats.frames_decoded += decoded
+        self.stats.bytes_discarded += discarded
