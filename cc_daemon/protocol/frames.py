@@ -166,9 +166,16 @@ def _position_decoder(cls: type[Telemetry] | type[StartMeasuring]) -> Decoder:
         if conf > CONFIDENCE_MAX:
             raise FrameError("bad_field", f"sonar_confidence_pct={conf} is over 100")
         alt = alt_hi << 16 | alt_lo
-        return _new(  # type: ignore[no-any-return]
+        return _new(
             cls,
-            (ts, -lon if lon_s else lon, -lat if lat_s else lat, -alt if alt_s else alt, sonar, conf),
+            (
+                ts,
+                -lon if lon_s else lon,
+                -lat if lat_s else lat,
+                -alt if alt_s else alt,
+                sonar,
+                conf,
+            ),
         )
 
     return decode
@@ -185,14 +192,14 @@ def _position_problem(lon_s: int, lon: int, lat_s: int, lat: int, alt_s: int) ->
 
 def _timestamp_decoder(cls: type[ProbePositionRequest] | type[Ack]) -> Decoder:
     def decode(buf: bytes | bytearray, start: int) -> Message:
-        return _new(cls, (buf[start + 2] << 8 | buf[start + 3],))  # type: ignore[no-any-return]
+        return _new(cls, (buf[start + 2] << 8 | buf[start + 3],))
 
     return decode
 
 
 def _depth_decoder(cls: type[DepthReport] | type[Finished] | type[ProbePosition]) -> Decoder:
     def decode(buf: bytes | bytearray, start: int) -> Message:
-        return _new(  # type: ignore[no-any-return]
+        return _new(
             cls, (buf[start + 2] << 8 | buf[start + 3], buf[start + 4] << 8 | buf[start + 5])
         )
 
@@ -234,12 +241,8 @@ G_ALIAS_LAYOUT: dict[int, Layout] = {
 
 CC_LAYOUTS: dict[int, Layout] = {
     _key(Sync.CC, FrameType.ACK): Layout("R-O", TIMESTAMP_ONLY_LENGTH, _timestamp_decoder(Ack)),
-    _key(Sync.CC, FrameType.DEPTH): Layout(
-        "R-M", WITH_DEPTH_LENGTH, _depth_decoder(DepthReport)
-    ),
-    _key(Sync.CC, FrameType.FINISHED): Layout(
-        "R-F", WITH_DEPTH_LENGTH, _depth_decoder(Finished)
-    ),
+    _key(Sync.CC, FrameType.DEPTH): Layout("R-M", WITH_DEPTH_LENGTH, _depth_decoder(DepthReport)),
+    _key(Sync.CC, FrameType.FINISHED): Layout("R-F", WITH_DEPTH_LENGTH, _depth_decoder(Finished)),
     _key(Sync.CC, FrameType.PROBE_POSITION): Layout(
         "R-P", WITH_DEPTH_LENGTH, _depth_decoder(ProbePosition)
     ),

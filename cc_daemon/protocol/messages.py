@@ -44,7 +44,8 @@ class _Typed:
     __slots__ = ()
 
     def __eq__(self, other: object) -> bool:
-        return type(self) is type(other) and tuple.__eq__(self, other)  # type: ignore[arg-type]
+        # super() is the NamedTuple's tuple in every concrete message's MRO.
+        return type(self) is type(other) and super().__eq__(other)
 
     def __ne__(self, other: object) -> bool:
         return not self.__eq__(other)

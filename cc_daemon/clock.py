@@ -1,0 +1,40 @@
+"""The one injectable clock.
+
+Everything in the asyncio shell that waits or timestamps asks the same
+`Clock`, so tests can substitute time and the depth report runs on absolute
+deadlines. The sans-IO core never holds a clock: it is *given* `now`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Protocol
+
+
+class Clock(Protocol):
+    def monotonic(self) -> float:
+        """Seconds on a clock that never jumps (the basis of every deadline)."""
+        ...
+
+    def wall(self) -> float:
+        """Seconds since the Unix epoch (may jump; recorded, never scheduled on)."""
+        ...
+
+    async def sleep_until(self, deadline: float) -> None:
+        """Return once `monotonic()` has reached `deadline`."""
+        ...
+
+
+class SystemClock:
+    """The real clock. asyncio's loop runs on `time.monotonic` too, so timers agree."""
+
+    def monotonic(self) -> float:
+        return time.monotonic()
+
+    def wall(self) -> float:
+        return time.time()
+
+    async def sleep_until(self, deadline: float) -> None:
+        delay = deadline - time.monotonic()
+        await asyncio.sleep(delay if delay > 0 else 0)

@@ -1,0 +1,55 @@
+"""`cc-daemon decode --port PATH`: decode a live serial line until Ctrl-C.
+
+For an engineer on a sniffer cable or a spare UART: the same `SerialLink` the
+daemon uses (so an unplugged adapter is reopened the same way), a parser that
+listens to both directions, and one printed line per frame or error. The port
+is opened non-exclusively so it can sit beside another reader.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+import sys
+
+from cc_daemon.decode import format_event
+from cc_daemon.link import SerialLink
+from cc_daemon.protocol import Parser, Sender
+
+
+async def _decode(port: str, baudrate: int, *, as_json: bool, accept_g_alias: bool) -> int:
+    parser = Parser(Sender.BOTH, accept_g_alias=accept_g_alias)
+
+    def on_data(data: bytes) -> None:
+        for event in parser.events(data):
+            print(format_event(event, as_json=as_json), flush=True)
+
+    def on_state(up: bool, reason: str) -> None:
+        state = "open" if up else f"lost ({reason}); reopening"
+        print(f"# {port}: {state}", file=sys.stderr, flush=True)
+
+    link = SerialLink(port, on_data=on_data, on_state=on_state, baudrate=baudrate, exclusive=False)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(signum, stop.set)
+    task = asyncio.create_task(link.run(), name="serial-link")
+    try:
+        await stop.wait()
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+    stats = parser.stats
+    print(
+        f"# {stats.frames_decoded} frames, {stats.errors} errors "
+        f"({stats.bad_checksum} bad checksum, {stats.unknown_type} unknown type, "
+        f"{stats.bad_field} bad field), {stats.bytes_discarded} bytes discarded",
+        file=sys.stderr,
+    )
+    return 1 if stats.errors else 0
+
+
+def decode_port(port: str, baudrate: int, *, as_json: bool, accept_g_alias: bool) -> int:
+    return asyncio.run(_decode(port, baudrate, as_json=as_json, accept_g_alias=accept_g_alias))

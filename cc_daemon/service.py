@@ -1,0 +1,589 @@
+"""The daemon: routes autopilot messages and owns the running cast.
+
+It answers the autopilot from the link's read callback (so a reply goes out
+in the same loop iteration that read the request), remembers the latest fix,
+decides per `M` frame whether to start, repeat or refuse a cast, and runs the
+cast's pure state machine (`cast.machine`) against the winch in one task.
+
+Guarantees:
+- A handler's exception is logged and never stops the read loop.
+- The cast does not depend on the link: with the port gone, the cast goes on
+  and keeps recording; depth reports produced meanwhile are not queued.
+- R-F is sent only when the winch says the probe is home (checked by the
+  machine and again here, just before writing).
+- Leaving `run()` in any way leaves the winch motor stopped.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import structlog
+
+from cc_daemon.cast.machine import (
+    Action,
+    Alarm,
+    CastMachine,
+    CommandWinch,
+    Outcome,
+    PhaseChanged,
+    ReportDepth,
+    SendFinished,
+    StopWinch,
+)
+from cc_daemon.cast.plan import CastPlan, Phase, SkipCast, plan_cast
+from cc_daemon.cast.stations import StationMemory
+from cc_daemon.cast.timestamps import AutopilotTime
+from cc_daemon.clock import Clock, SystemClock
+from cc_daemon.config import Settings
+from cc_daemon.errors import ConfigError
+from cc_daemon.link import SerialLink
+from cc_daemon.protocol import (
+    Ack,
+    Finished,
+    Message,
+    Parser,
+    ProbePosition,
+    ProbePositionRequest,
+    Sender,
+    StartMeasuring,
+    Telemetry,
+    as_dict,
+    encode,
+)
+from cc_daemon.protocol.messages import CcMessage, DepthReport
+from cc_daemon.store import Journal, default_store_path
+from cc_daemon.systemd import SystemdNotifier
+from cc_daemon.winch.base import Winch, WinchStatus
+from cc_daemon.winch.physics import LinePhysics
+from cc_daemon.winch.simulated import SimulatedWinch
+
+_log = structlog.get_logger("cc_daemon.service")
+
+HOUSEKEEPING_PERIOD_S = 10.0
+EXIT_OK = 0
+EXIT_PROBE_MAY_BE_DOWN = 130
+
+
+def make_winch(settings: Settings, clock: Clock) -> Winch:
+    """The configured winch backend (validated before any hardware is touched)."""
+    winch = settings.winch
+    if winch.backend == "sim":
+        physics = LinePhysics(
+            speed_m_s=winch.sim.speed_m_s,
+            max_line_m=winch.max_line_m,
+            stall_at_m=winch.sim.stall_at_m,
+            fail_home=winch.sim.fail_home,
+        )
+        return SimulatedWinch(physics, clock)
+    raise ConfigError(
+        f"winch.backend = {winch.backend!r}: the GPIO backend is not part of this build; "
+        "allowed: 'sim'"
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class Fix:
+    """The latest position report, with when it arrived."""
+
+    message: Telemetry | StartMeasuring
+    monotonic: float
+    wall: float
+
+
+@dataclass(frozen=True, slots=True)
+class DaemonStatus:
+    link_up: bool
+    phase: str  # "idle" or the running cast's phase
+    probe_depth_m: float
+    planned_depth_m: float | None
+    cast_id: int | None
+    frames_in: int
+    frames_out: int
+    corrupt_frames: int
+    casts_completed: int
+    casts_aborted: int
+    casts_skipped: int
+    winch_fault: str | None
+    port_losses: int
+    last_fix: Fix | None
+
+
+class _ActiveCast:
+    def __init__(self, cast_id: int, station: StartMeasuring, machine: CastMachine) -> None:
+        self.cast_id = cast_id
+        self.station = station
+        self.machine = machine
+        self.task: asyncio.Task[None] | None = None
+        self.reports = 0
+
+
+class Daemon:
+    def __init__(
+        self,
+        settings: Settings,
+        *,
+        clock: Clock | None = None,
+        winch: Winch | None = None,
+        journal: Journal | None = None,
+        notifier: SystemdNotifier | None = None,
+    ) -> None:
+        self.settings = settings
+        self._clock = clock or SystemClock()
+        self._winch = winch
+        self._journal = journal
+        self._notifier = notifier or SystemdNotifier.from_environment()
+        self.ready = asyncio.Event()
+        self._shutdown = asyncio.Event()
+        self._shutting_down = False
+        self._exit_code = EXIT_OK
+        self._started_at = self._clock.monotonic()
+        self._time = AutopilotTime(self._started_at)
+        self._stations = StationMemory(settings.cast.rearm_s, settings.cast.rearm_distance_m)
+        self._parser = Parser(
+            Sender.AUTOPILOT,
+            accept_g_alias=settings.serial.accept_g_alias,
+        )
+        serial_settings = settings.serial
+        self.link = SerialLink(
+            serial_settings.port,
+            on_data=self._on_data,
+            on_state=self._on_link_state,
+            baudrate=serial_settings.baudrate,
+            bytesize=serial_settings.bytesize,
+            parity=serial_settings.parity,
+            stopbits=serial_settings.stopbits,
+            reconnect_initial_s=serial_settings.reconnect_initial_s,
+            reconnect_max_s=serial_settings.reconnect_max_s,
+        )
+        self._cast: _ActiveCast | None = None
+        self._tasks: asyncio.TaskGroup | None = None
+        self.last_fix: Fix | None = None
+        self.frames_in = 0
+        self.frames_out = 0
+        self.casts_completed = 0
+        self.casts_aborted = 0
+        self.casts_skipped = 0
+        self.port_losses = 0
+        self._corrupt_reported = 0
+        self._last_depth_m = 0.0
+
+    # ------------------------------------------------------------ lifecycle
+
+    async def run(self) -> int:
+        """Serve until shut down; return the process exit status."""
+        if self._winch is None:
+            self._winch = make_winch(self.settings, self._clock)
+        if self._journal is None:
+            path = self.settings.store.path or default_store_path()
+            self._journal = Journal(path)
+            for cast_id in self._journal.open():
+                _log.warning("cast left unfinished by a previous run", cast_id=cast_id)
+        self._journal.record_event("daemon_started", port=self.settings.serial.port)
+        _log.info(
+            "cc-daemon started",
+            port=self.settings.serial.port,
+            baudrate=self.settings.serial.baudrate,
+            winch=self.settings.winch.backend,
+            store=str(self._journal.path),
+        )
+        try:
+            async with asyncio.TaskGroup() as tasks:
+                self._tasks = tasks
+                link_task = tasks.create_task(self.link.run(), name="serial-link")
+                housekeeping = tasks.create_task(self._housekeeping(), name="housekeeping")
+                await self._shutdown.wait()
+                self._notifier.notify("STOPPING=1")
+                await self._finish_running_cast()
+                link_task.cancel()
+                housekeeping.cancel()
+        finally:
+            await self._close()
+        return self._exit_code
+
+    def request_shutdown(self, *, immediate: bool = False) -> None:
+        """Graceful: start no new cast, bring the probe home, send R-F, stop.
+
+        `immediate` (a second Ctrl-C): stop the motor now and exit at once.
+        """
+        if immediate:
+            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
+            self._stop_motor("immediate shutdown")
+            cast = self._cast
+            if cast is not None:
+                _log.critical(
+                    "immediate shutdown: winch stopped, the probe may be down",
+                    depth_m=round(self._probe_depth(), 3),
+                    cast_id=cast.cast_id,
+                )
+                if cast.task is not None:
+                    cast.task.cancel()
+        elif not self._shutting_down:
+            _log.info("shutting down: no new casts", cast_running=self._cast is not None)
+        self._shutting_down = True
+        self._shutdown.set()
+
+    async def _finish_running_cast(self) -> None:
+        cast = self._cast
+        if cast is None or cast.task is None:
+            return
+        if self._exit_code == EXIT_OK:
+            _log.info("shutdown: bringing the probe home before exiting", cast_id=cast.cast_id)
+            self._execute(cast, cast.machine.abort(self._clock.monotonic(), "shutdown"))
+        with contextlib.suppress(asyncio.CancelledError):
+            await cast.task
+
+    async def _close(self) -> None:
+        winch = self._winch
+        if winch is not None:
+            try:
+                await winch.close()
+            except Exception:
+                _log.critical("could not close the winch backend", exc_info=True)
+        cast = self._cast
+        journal = self._journal
+        if journal is not None:
+            if cast is not None:  # stranded or cut short: the record says so
+                journal.end_cast(
+                    cast.cast_id,
+                    outcome=str(Outcome.UNFINISHED),
+                    reached_depth_m=cast.machine.reached_depth_m,
+                    reason=f"daemon stopped with the probe at {self._probe_depth():.2f} m",
+                )
+            journal.record_event("daemon_stopped", exit_code=self._exit_code)
+            journal.close()
+        _log.info("cc-daemon stopped", exit_code=self._exit_code)
+
+    async def _housekeeping(self) -> None:
+        """Periodic: corrupt-frame counts to the journal and log, systemd watchdog."""
+        while True:
+            await asyncio.sleep(HOUSEKEEPING_PERIOD_S)
+            self._notifier.watchdog()
+            corrupt = self._parser.stats.errors
+            if corrupt != self._corrupt_reported:
+                new = corrupt - self._corrupt_reported
+                self._corrupt_reported = corrupt
+                _log.warning("corrupt frames received", new=new, total=corrupt)
+                self._journal_event("corrupt_frames", new=new, total=corrupt)
+
+    # ------------------------------------------------------------ status
+
+    def snapshot(self) -> DaemonStatus:
+        cast = self._cast
+        return DaemonStatus(
+            link_up=self.link.up,
+            phase=str(cast.machine.phase) if cast else "idle",
+            probe_depth_m=self._probe_depth(),
+            planned_depth_m=cast.machine.plan.depth_m if cast else None,
+            cast_id=cast.cast_id if cast else None,
+            frames_in=self.frames_in,
+            frames_out=self.frames_out,
+            corrupt_frames=self._parser.stats.errors,
+            casts_completed=self.casts_completed,
+            casts_aborted=self.casts_aborted,
+            casts_skipped=self.casts_skipped,
+            winch_fault=cast.machine.winch_fault if cast else None,
+            port_losses=self.port_losses,
+            last_fix=self.last_fix,
+        )
+
+    @property
+    def journal(self) -> Journal | None:
+        return self._journal
+
+    def _winch_status(self) -> WinchStatus:
+        """The winch's status; if the backend fails, a faulted status at the last depth."""
+        assert self._winch is not None
+        try:
+            status = self._winch.status()
+        except Exception as exc:
+            return WinchStatus(self._last_depth_m, False, False, f"{type(exc).__name__}: {exc}")
+        self._last_depth_m = status.depth_m
+        return status
+
+    def _probe_depth(self) -> float:
+        return self._winch_status().depth_m if self._winch is not None else 0.0
+
+    # ------------------------------------------------------------ link side
+
+    def _on_link_state(self, up: bool, reason: str) -> None:
+        if up:
+            self._journal_event("port_opened", port=self.link.port)
+            if not self.ready.is_set():
+                self.ready.set()
+                self._notifier.notify("READY=1", f"STATUS=answering on {self.link.port}")
+            else:
+                self._notifier.notify(f"STATUS=answering on {self.link.port} (reopened)")
+        else:
+            self.port_losses += 1
+            self._journal_event("port_lost", port=self.link.port, reason=reason)
+            self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
+
+    def _on_data(self, data: bytes) -> None:
+        for message in self._parser.feed(data):
+            self.frames_in += 1
+            try:
+                self._handle(message)
+            except Exception:
+                _log.exception("error handling frame", frame=message.frame)
+
+    def _send(self, message: CcMessage) -> bool:
+        sent = self.link.write(encode(message))
+        if sent:
+            self.frames_out += 1
+        _log.debug("frame out", sent=sent, **as_dict(message))
+        return sent
+
+    def _now_ts(self) -> int:
+        return self._time.at(self._clock.monotonic())
+
+    def _depth_mm(self, depth_m: float) -> int:
+        return max(0, round(depth_m * 1000))
+
+    # ------------------------------------------------------------ messages
+
+    def _handle(self, message: Message) -> None:
+        now = self._clock.monotonic()
+        _log.debug("frame in", **as_dict(message))
+        if isinstance(message, ProbePositionRequest):
+            self._time.observe(message.timestamp_s, now)
+            self._send(ProbePosition(self._time.at(now), self._depth_mm(self._probe_depth())))
+        elif isinstance(message, Telemetry):
+            self._time.observe(message.timestamp_s, now)
+            self._remember_fix(message, now)
+        elif isinstance(message, StartMeasuring):
+            self._time.observe(message.timestamp_s, now)
+            self._remember_fix(message, now)
+            self._on_start_measuring(message, now)
+        else:  # the parser listens to autopilot frames only
+            _log.warning("unexpected frame from the autopilot side", frame=message.frame)
+
+    def _remember_fix(self, message: Telemetry | StartMeasuring, now: float) -> None:
+        self.last_fix = Fix(message, now, self._clock.wall())
+        with self._journaling("record_fix") as journal:
+            if journal is not None:
+                journal.record_fix(message)
+
+    def _on_start_measuring(self, station: StartMeasuring, now: float) -> None:
+        if self._cast is not None:
+            self._send(Ack(self._time.at(now)))  # the same station, still running
+            return
+        if self._shutting_down:
+            _log.warning("start-measuring ignored: shutting down", timestamp_s=station.timestamp_s)
+            return
+        self._send(Ack(self._time.at(now)))
+        status = self._winch_status()
+        if not status.at_home:
+            _log.critical(
+                "start-measuring refused: the probe is not home",
+                depth_m=round(status.depth_m, 3),
+                fault=status.fault,
+            )
+            return
+        done = self._stations.recently_done(station, now)
+        if done is not None:
+            _log.info("station already done: repeating R-F", cast_id=done.cast_id)
+            self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
+            return
+        plan = plan_cast(station, self.settings.cast, self.settings.winch.max_line_m)
+        if isinstance(plan, SkipCast):
+            self._skip_cast(station, plan, now, status)
+        else:
+            self._start_cast(station, plan, now)
+
+    def _skip_cast(
+        self, station: StartMeasuring, skip: SkipCast, now: float, status: WinchStatus
+    ) -> None:
+        _log.warning("cast skipped: station too shallow", reason=skip.reason)
+        cast_id = self._journal_start(station, skip.planned_depth_m, {"skipped": skip.reason})
+        with self._journaling("end_cast") as journal:
+            if journal is not None and cast_id is not None:
+                journal.end_cast(
+                    cast_id,
+                    outcome=str(Outcome.SKIPPED_SHALLOW),
+                    reached_depth_m=0.0,
+                    reason=skip.reason,
+                )
+        self.casts_skipped += 1
+        self._stations.finished(station, now, cast_id)
+        self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
+
+    def _start_cast(self, station: StartMeasuring, plan: CastPlan, now: float) -> None:
+        cast_id = self._journal_start(station, plan.depth_m, plan.describe())
+        machine = CastMachine(
+            plan,
+            started_at=now,
+            report_period_s=self.settings.cast.report_period_s,
+            max_duration_s=self.settings.cast.max_duration_s,
+        )
+        cast = _ActiveCast(cast_id if cast_id is not None else -1, station, machine)
+        self._cast = cast
+        _log.info(
+            "cast started",
+            cast_id=cast.cast_id,
+            depth_m=round(plan.depth_m, 3),
+            limited_by=plan.limited_by,
+            water_depth_m=plan.water_depth_m,
+            mode=plan.mode,
+        )
+        assert self._tasks is not None
+        cast.task = self._tasks.create_task(self._run_cast(cast), name=f"cast-{cast.cast_id}")
+
+    # ------------------------------------------------------------ the cast
+
+    async def _run_cast(self, cast: _ActiveCast) -> None:
+        machine = cast.machine
+        winch = self._winch
+        assert winch is not None
+        try:
+            while not machine.finished:
+                actions = machine.step(self._clock.monotonic(), self._winch_status())
+                commanded = self._execute(cast, actions)
+                if machine.finished:
+                    break
+                if commanded:
+                    continue  # look at the winch again before sleeping
+                timeout = machine.next_deadline() - self._clock.monotonic()
+                try:
+                    await winch.wait_change(timeout)
+                except Exception as exc:
+                    self._execute(
+                        cast, machine.winch_error(self._clock.monotonic(), f"wait failed: {exc}")
+                    )
+                    await asyncio.sleep(max(timeout, 0.0))
+        except asyncio.CancelledError:
+            self._stop_motor("cast cancelled")
+            raise
+        except Exception:
+            # A bug in our own code: stop the motor and say so as loudly as we can.
+            self._stop_motor("internal error")
+            _log.critical(
+                "internal error in the cast: winch stopped, the probe may be down",
+                cast_id=cast.cast_id,
+                exc_info=True,
+            )
+            return
+        self._cast = None
+
+    def _execute(self, cast: _ActiveCast, actions: list[Action]) -> bool:
+        """Carry out the machine's actions; True if the winch was commanded."""
+        commanded = False
+        queue = list(actions)
+        while queue:
+            action = queue.pop(0)
+            now = self._clock.monotonic()
+            match action:
+                case CommandWinch(depth_m=depth):
+                    assert self._winch is not None
+                    commanded = True
+                    try:
+                        self._winch.move_to(depth)
+                    except Exception as exc:
+                        _log.error("winch command failed", depth_m=depth, error=str(exc))
+                        queue.extend(cast.machine.winch_error(now, f"{type(exc).__name__}: {exc}"))
+                case StopWinch(reason=reason):
+                    self._stop_motor(reason)
+                case ReportDepth(depth_m=depth, phase=phase):
+                    cast.reports += 1
+                    self._send(DepthReport(self._time.at(now), self._depth_mm(depth)))
+                    with self._journaling("record_sample") as journal:
+                        if journal is not None:
+                            journal.record_sample(cast.cast_id, depth, str(phase))
+                case SendFinished():
+                    self._finish(cast, action, now)
+                case PhaseChanged(old=old, new=new, reason=reason):
+                    self._phase_changed(cast, old, new, reason)
+                case Alarm(message=message):
+                    _log.critical(
+                        message,
+                        cast_id=cast.cast_id,
+                        stranded_for_s=round(now - cast.machine.started_at),
+                    )
+        return commanded
+
+    def _phase_changed(self, cast: _ActiveCast, old: Phase, new: Phase, reason: str | None) -> None:
+        depth = round(cast.machine.depth_m, 3)
+        if new is Phase.ABORTING:
+            _log.error(
+                "cast aborted: bringing the probe home",
+                cast_id=cast.cast_id,
+                reason=reason,
+                depth_m=depth,
+            )
+            self._journal_event("cast_aborted", cast_id=cast.cast_id, reason=reason, depth_m=depth)
+            if cast.machine.winch_fault:
+                self._journal_event(
+                    "winch_fault", cast_id=cast.cast_id, fault=cast.machine.winch_fault
+                )
+        elif new is Phase.STRANDED:
+            self._journal_event("cast_stranded", cast_id=cast.cast_id, reason=reason, depth_m=depth)
+        else:
+            _log.info("cast phase", cast_id=cast.cast_id, phase=str(new), depth_m=depth)
+
+    def _finish(self, cast: _ActiveCast, action: SendFinished, now: float) -> None:
+        status = self._winch_status()
+        if not status.at_home:  # never tell the autopilot to leave with the probe down
+            _log.critical("R-F withheld: the probe is not home", depth_m=round(status.depth_m, 3))
+            return
+        self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
+        with self._journaling("end_cast") as journal:
+            if journal is not None:
+                journal.end_cast(
+                    cast.cast_id,
+                    outcome=str(action.outcome),
+                    reached_depth_m=cast.machine.reached_depth_m,
+                    reason=action.reason,
+                )
+        self._stations.finished(cast.station, now, cast.cast_id)
+        if action.outcome is Outcome.COMPLETED:
+            self.casts_completed += 1
+        else:
+            self.casts_aborted += 1
+        _log.info(
+            "cast finished: probe home, R-F sent",
+            cast_id=cast.cast_id,
+            outcome=str(action.outcome),
+            reason=action.reason,
+            reached_depth_m=round(cast.machine.reached_depth_m, 3),
+            duration_s=round(now - cast.machine.started_at, 1),
+            reports=cast.reports,
+        )
+
+    def _stop_motor(self, reason: str) -> None:
+        winch = self._winch
+        if winch is None:
+            return
+        try:
+            winch.stop()
+        except Exception:
+            _log.critical("COULD NOT STOP THE WINCH MOTOR", reason=reason, exc_info=True)
+
+    # ------------------------------------------------------------ journal
+
+    @contextlib.contextmanager
+    def _journaling(self, what: str) -> Iterator[Journal | None]:
+        """Yield the journal; whatever goes wrong in it, the boat goes on."""
+        try:
+            yield self._journal
+        except Exception:
+            _log.error("journal call failed", what=what, exc_info=True)
+
+    def _journal_start(
+        self, station: StartMeasuring, planned_depth_m: float, plan: dict[str, object]
+    ) -> int | None:
+        with self._journaling("start_cast") as journal:
+            if journal is not None:
+                mode = str(plan.get("mode", self.settings.cast.mode))
+                return journal.start_cast(
+                    station, planned_depth_m=planned_depth_m, mode=mode, plan=plan
+                )
+        return None
+
+    def _journal_event(self, kind: str, **detail: Any) -> None:
+        with self._journaling(kind) as journal:
+            if journal is not None:
+                journal.record_event(kind, **detail)

@@ -1,0 +1,58 @@
+"""systemd service notification (sd_notify), without a C library.
+
+Under `Type=notify` systemd passes a datagram socket in `NOTIFY_SOCKET`; the
+daemon sends `READY=1` once it answers the autopilot, `STATUS=...` lines an
+operator sees in `systemctl status`, `STOPPING=1` on shutdown and, when the
+unit sets `WatchdogSec=`, `WATCHDOG=1` pings. Outside systemd every call is a
+no-op. Sending never raises: a notification is never worth stopping the boat.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+
+import structlog
+
+_log = structlog.get_logger("cc_daemon.systemd")
+
+
+class SystemdNotifier:
+    def __init__(self, address: str | None, watchdog: bool = False) -> None:
+        if address and address.startswith("@"):  # abstract socket namespace
+            address = "\0" + address[1:]
+        self._address = address or None
+        self._watchdog = watchdog
+        self._socket: socket.socket | None = None
+
+    @classmethod
+    def from_environment(cls) -> SystemdNotifier:
+        watchdog = bool(os.environ.get("WATCHDOG_USEC")) and (
+            os.environ.get("WATCHDOG_PID", str(os.getpid())) == str(os.getpid())
+        )
+        return cls(os.environ.get("NOTIFY_SOCKET"), watchdog)
+
+    @property
+    def enabled(self) -> bool:
+        return self._address is not None
+
+    def notify(self, *lines: str) -> None:
+        if self._address is None:
+            return
+        try:
+            if self._socket is None:
+                self._socket = socket.socket(
+                    socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC
+                )
+            self._socket.sendto("\n".join(lines).encode(), self._address)
+        except OSError as exc:
+            _log.warning("systemd notification failed", error=str(exc))
+
+    def watchdog(self) -> None:
+        if self._watchdog:
+            self.notify("WATCHDOG=1")
+
+    def close(self) -> None:
+        if self._socket is not None:
+            self._socket.close()
+            self._socket = None

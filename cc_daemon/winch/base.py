@@ -1,0 +1,40 @@
+"""The winch interface every backend implements.
+
+It is shaped for a motor with a direction, a home limit switch and a drum
+encoder: the cast asks for a depth, the winch runs towards it and stops by
+itself on arrival, on a fault (stall, jam, lost encoder) or when told to stop.
+The winch, not the cast, decides when a target is reached, because only it
+knows its encoder's resolution.
+
+Contract:
+- `move_to` starts a motion and returns at once; it clears a previous fault
+  (it is a new attempt) or raises `WinchFault` if the backend refuses.
+- `stop` stops the motor and never raises for a motor that is already stopped.
+- `status` is cheap and never blocks.
+- `wait_change` returns when the status may have changed (arrival, fault,
+  stop) or after `timeout` seconds, whichever is first.
+- `close` leaves the motor stopped, whatever state it was in.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Protocol
+
+
+class WinchStatus(NamedTuple):
+    depth_m: float  # probe depth below the surface, >= 0
+    moving: bool
+    at_home: bool  # the home limit switch (or the model of it) is made
+    fault: str | None  # why the winch last stopped short, if it did
+
+
+class Winch(Protocol):
+    def status(self) -> WinchStatus: ...
+
+    def move_to(self, depth_m: float) -> None: ...
+
+    def stop(self) -> None: ...
+
+    async def wait_change(self, timeout: float) -> None: ...
+
+    async def close(self) -> None: ...
