@@ -1,0 +1,280 @@
+"""The data commands of `cc-daemon`: `casts`, `export` and `plot`.
+
+This module owns the command-line surface for getting data out of the
+journal: the arguments, which records each command takes, which writer it
+calls, its messages and its exit status (0 done; 1 the journal, the data or an
+optional package was not there; 2 the arguments were wrong). `add_commands`
+registers the three commands on the main `cc-daemon` parser, each with a
+`handler(args) -> int`; `main` runs them alone (`python -m cc_daemon.datacli`).
+
+It reads the journal only through `JournalReader`, which opens the file
+read-only: these commands are safe to run while the daemon is recording, and
+never create, migrate or repair a journal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import TextIO
+
+from cc_daemon.export import OptionalDependencyError
+from cc_daemon.store import JournalReader, StoreError, default_store_path
+from cc_daemon.store.reader import CastRecord, iso_utc, parse_time
+
+Handler = Callable[[argparse.Namespace], int]
+
+
+class _UsageError(Exception):
+    """The arguments do not make sense together (exit status 2)."""
+
+
+def _since(text: str) -> float:
+    try:
+        return parse_time(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not an ISO 8601 time (e.g. 2024-05-01T10:00Z; no offset means UTC)"
+        ) from None
+
+
+def _cast_id(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a cast id (a whole number >= 1)")
+    return value
+
+
+def add_commands(
+    subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
+    *,
+    default_db: Path | None = None,
+) -> None:
+    """Register `casts`, `export` and `plot`; each sets `handler` to call with the args.
+
+    `--db` defaults to `default_db` if given (e.g. the configured `store.path`),
+    else to `default_store_path()`.
+    """
+    db = default_db if default_db is not None else default_store_path()
+    db_help = f"the journal file (default: {db})"
+    since_help = "only data from this UTC time on (ISO 8601, e.g. 2024-05-01T10:00Z)"
+
+    casts = subparsers.add_parser(
+        "casts",
+        help="list the casts in the survey journal",
+        description="A table of the casts: id, start, station, water depth, reached depth,"
+        " samples and outcome.",
+    )
+    casts.add_argument("--db", type=Path, default=db, metavar="PATH", help=db_help)
+    casts.add_argument("--since", type=_since, metavar="TIME", help=since_help)
+    casts.set_defaults(handler=_run_casts)
+
+    export = subparsers.add_parser(
+        "export",
+        help="export the survey journal as CSV, GeoJSON or NetCDF",
+        description="Export samples, telemetry or events as CSV; the survey (stations, track,"
+        " soundings) as GeoJSON; the casts as CF profiles in NetCDF (needs the 'netcdf' extra).",
+    )
+    export.add_argument("--db", type=Path, default=db, metavar="PATH", help=db_help)
+    export.add_argument("--format", required=True, choices=("csv", "geojson", "netcdf"))
+    export.add_argument(
+        "--what",
+        choices=("samples", "telemetry", "events"),
+        help="with --format csv: which records (default: samples)",
+    )
+    export.add_argument("--cast", type=_cast_id, metavar="N", help="only cast N")
+    export.add_argument("--since", type=_since, metavar="TIME", help=since_help)
+    export.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        metavar="FILE",
+        help="write to FILE (default: standard output; NetCDF needs a file)",
+    )
+    export.set_defaults(handler=_run_export)
+
+    plot = subparsers.add_parser(
+        "plot",
+        help="plot a cast or the survey as a PNG",
+        description="Plot one cast (depth against time, phases shaded) or the survey (track"
+        " coloured by sonar depth, stations). Needs the 'plot' extra (matplotlib).",
+    )
+    plot.add_argument("--db", type=Path, default=db, metavar="PATH", help=db_help)
+    which = plot.add_mutually_exclusive_group(required=True)
+    which.add_argument("--cast", type=_cast_id, metavar="N", help="plot cast N")
+    which.add_argument("--survey", action="store_true", help="plot the whole survey")
+    plot.add_argument("--since", type=_since, metavar="TIME", help=f"with --survey: {since_help}")
+    plot.add_argument("-o", "--output", type=Path, metavar="FILE", required=True, help="PNG file")
+    plot.set_defaults(handler=_run_plot)
+
+
+def _guarded(name: str, run: Handler, args: argparse.Namespace) -> int:
+    """Run a command, turning the errors a user can meet into one line on stderr."""
+    try:
+        return run(args)
+    except _UsageError as exc:
+        print(f"cc-daemon {name}: {exc}", file=sys.stderr)
+        return 2
+    except (StoreError, OptionalDependencyError, ValueError) as exc:
+        print(f"cc-daemon {name}: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"cc-daemon {name}: {exc.strerror or exc}: {exc.filename or ''}", file=sys.stderr)
+        return 1
+
+
+def _run_casts(args: argparse.Namespace) -> int:
+    return _guarded("casts", _casts, args)
+
+
+def _run_export(args: argparse.Namespace) -> int:
+    return _guarded("export", _export, args)
+
+
+def _run_plot(args: argparse.Namespace) -> int:
+    return _guarded("plot", _plot, args)
+
+
+def _number(value: float | None, width: int, digits: int) -> str:
+    return f"{'-':>{width}}" if value is None else f"{value:>{width}.{digits}f}"
+
+
+def format_casts(casts: Sequence[CastRecord]) -> str:
+    """The `casts` table; a `*` after a time marks a clock that was not synchronised."""
+    lines = [
+        f"{'id':>5}  {'start (UTC)':<21} {'lat':>11} {'lon':>12} {'water m':>8} {'conf %':>6}"
+        f" {'reached m':>9} {'samples':>7}  outcome"
+    ]
+    for c in casts:
+        start = iso_utc(c.start_wall_s)[:19] + "Z" + (" " if c.start_clock_synced else "*")
+        outcome = c.outcome or "running"
+        if c.reason:
+            outcome += f" ({c.reason})"
+        lines.append(
+            f"{c.id:>5}  {start:<21} {c.lat_deg:>11.7f} {c.lon_deg:>12.7f}"
+            f" {_number(c.water_depth_m, 8, 2)} {c.sonar_confidence_pct:>6}"
+            f" {_number(c.reached_depth_m, 9, 2)} {c.samples:>7}  {outcome}"
+        )
+    if any(not c.start_clock_synced for c in casts):
+        lines.append("* the clock was not synchronised: that time may be wrong")
+    return "\n".join(lines) + "\n"
+
+
+def _casts(args: argparse.Namespace) -> int:
+    with JournalReader(args.db) as reader:
+        casts = reader.casts(since=args.since)
+    if not casts:
+        print(f"no casts in {args.db}", file=sys.stderr)
+        return 0
+    sys.stdout.write(format_casts(casts))
+    return 0
+
+
+@contextlib.contextmanager
+def _output(path: Path | None, *, newline: str | None = None) -> Iterator[TextIO]:
+    if path is None:
+        yield sys.stdout
+        sys.stdout.flush()
+        return
+    with path.open("w", encoding="utf-8", newline=newline) as out:
+        yield out
+
+
+def _check_cast(reader: JournalReader, cast_id: int | None, path: Path) -> None:
+    if cast_id is not None and not reader.casts(cast_id=cast_id):
+        raise StoreError(f"no cast {cast_id} in {path}")
+
+
+def _export(args: argparse.Namespace) -> int:
+    from cc_daemon.export import csv, geojson
+
+    if args.what is not None and args.format != "csv":
+        raise _UsageError("--what applies to --format csv only")
+    if args.format == "netcdf" and args.output is None:
+        raise _UsageError("--format netcdf needs -o FILE (NetCDF is not written to a pipe)")
+    what = args.what or "samples"
+    if what == "events" and args.cast is not None:
+        raise _UsageError("--cast does not apply to --what events")
+    try:
+        with JournalReader(args.db) as reader:
+            _check_cast(reader, args.cast, args.db)
+            if args.format == "netcdf":
+                from cc_daemon.export import netcdf
+
+                casts = reader.casts(cast_id=args.cast, since=args.since)
+                samples = reader.samples(cast_id=args.cast)
+                count = netcdf.write(casts, samples, args.output)
+                noun = f"{len(casts)} casts, {count} samples"
+            elif args.format == "geojson":
+                casts = reader.casts(cast_id=args.cast, since=args.since)
+                fixes = reader.fixes(cast_id=args.cast, since=args.since)
+                with _output(args.output) as out:
+                    count = geojson.write(casts, fixes, out)
+                noun = f"{count} features"
+            else:
+                with _output(args.output, newline="") as out:
+                    if what == "samples":
+                        count = csv.write_samples(
+                            reader.samples(cast_id=args.cast, since=args.since), out
+                        )
+                    elif what == "telemetry":
+                        count = csv.write_fixes(
+                            reader.fixes(cast_id=args.cast, since=args.since), out
+                        )
+                    else:
+                        count = csv.write_events(reader.events(since=args.since), out)
+                noun = f"{count} {what} rows"
+    except BrokenPipeError:
+        # The reader of our stdout left (`| head`): not an error. Point stdout
+        # at /dev/null so the interpreter's final flush does not complain.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    if args.output is not None:
+        print(f"wrote {noun} to {args.output}", file=sys.stderr)
+    return 0
+
+
+def _plot(args: argparse.Namespace) -> int:
+    from cc_daemon import plot
+
+    if args.since is not None and not args.survey:
+        raise _UsageError("--since applies to --survey only")
+    with JournalReader(args.db) as reader:
+        if args.survey:
+            casts = reader.casts(since=args.since)
+            fixes = reader.fixes(since=args.since)
+            plot.plot_survey(casts, fixes, args.output)
+            noun = f"the survey ({len(fixes)} fixes, {len(casts)} casts)"
+        else:
+            _check_cast(reader, args.cast, args.db)
+            cast = reader.casts(cast_id=args.cast)[0]
+            plot.plot_cast(cast, reader.samples(cast_id=args.cast), args.output)
+            noun = f"cast {args.cast}"
+    print(f"plotted {noun} to {args.output}", file=sys.stderr)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """A parser with just the data commands (the real one is `cc_daemon.cli`)."""
+    parser = argparse.ArgumentParser(
+        prog="cc-daemon", description="Get the data out of the survey journal."
+    )
+    add_commands(parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    handler: Handler = args.handler
+    return handler(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,114 @@
+"""CSV exports of the journal: samples, telemetry fixes and events.
+
+This module owns the columns and number formats of the CSV files: one row per
+record, a header row, RFC 4180 quoting (the `csv` module's default dialect),
+times as ISO 8601 UTC, positions in degrees to 1e-7 (the autopilot's own
+resolution), depths and distances in metres to the millimetre. It never reads
+the journal and never reorders or filters what it is given.
+
+Every time column comes with `clock_synced` (0: the Pi's clock had not been
+synchronised, so the UTC time may be wrong) and `monotonic_s`, which is exact
+within one boot and lets the data be re-timed later.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Iterable
+from typing import TextIO
+
+from cc_daemon.store.reader import EventRecord, FixRecord, SampleRecord, iso_utc
+
+SAMPLE_COLUMNS = (
+    "cast_id",
+    "time_utc",
+    "lat",
+    "lon",
+    "depth_m",
+    "phase",
+    "clock_synced",
+    "monotonic_s",
+)
+FIX_COLUMNS = (
+    "time_utc",
+    "lat",
+    "lon",
+    "alt_m",
+    "sonar_depth_m",
+    "sonar_confidence_pct",
+    "frame",
+    "autopilot_timestamp_s",
+    "clock_synced",
+    "monotonic_s",
+)
+EVENT_COLUMNS = ("time_utc", "kind", "detail", "clock_synced", "monotonic_s")
+
+
+def _deg(value: float | None) -> str:
+    return "" if value is None else f"{value:.7f}"
+
+
+def write_samples(samples: Iterable[SampleRecord], out: TextIO) -> int:
+    """One row per depth sample; returns the number of rows written."""
+    writer = csv.writer(out)
+    writer.writerow(SAMPLE_COLUMNS)
+    count = 0
+    for s in samples:
+        writer.writerow(
+            (
+                s.cast_id,
+                iso_utc(s.wall_s),
+                _deg(s.lat_deg),
+                _deg(s.lon_deg),
+                f"{s.depth_m:.3f}",
+                s.phase,
+                int(s.clock_synced),
+                f"{s.mono_s:.3f}",
+            )
+        )
+        count += 1
+    return count
+
+
+def write_fixes(fixes: Iterable[FixRecord], out: TextIO) -> int:
+    """One row per telemetry fix (`P-T`) or start-measuring frame (`P-M`)."""
+    writer = csv.writer(out)
+    writer.writerow(FIX_COLUMNS)
+    count = 0
+    for f in fixes:
+        writer.writerow(
+            (
+                iso_utc(f.wall_s),
+                _deg(f.lat_deg),
+                _deg(f.lon_deg),
+                f"{f.alt_m:.3f}",
+                f"{f.sonar_distance_m:.3f}",
+                f.sonar_confidence_pct,
+                f.frame,
+                f.ap_timestamp_s,
+                int(f.clock_synced),
+                f"{f.mono_s:.3f}",
+            )
+        )
+        count += 1
+    return count
+
+
+def write_events(events: Iterable[EventRecord], out: TextIO) -> int:
+    """One row per link or fault event; `detail` is a JSON object."""
+    writer = csv.writer(out)
+    writer.writerow(EVENT_COLUMNS)
+    count = 0
+    for e in events:
+        writer.writerow(
+            (
+                iso_utc(e.wall_s),
+                e.kind,
+                json.dumps(e.detail, sort_keys=True),
+                int(e.clock_synced),
+                f"{e.mono_s:.3f}",
+            )
+        )
+        count += 1
+    return count

@@ -1,0 +1,198 @@
+"""NetCDF export: one vertical profile per cast, following the CF conventions.
+
+This module owns the NetCDF layout: CF-1.8 `featureType = "profile"` in the
+contiguous ragged array representation (CF 9.3.3). Each cast is a profile with
+one `time`, `lat` and `lon`; its samples lie along the `obs` dimension, in
+order, and `row_size` (with `sample_dimension = "obs"`) says how many belong to
+each profile. Categories (the cast phase, the outcome) are small integers with
+CF `flag_values` / `flag_meanings`, which xarray, Ocean Data View and Panoply
+all understand, rather than strings that the classic format cannot hold.
+
+The file is written in the NETCDF4_CLASSIC format, which the oldest readers
+still open. netCDF4 is the optional `netcdf` extra: it is imported here, when
+a file is written, never when the package is imported. This module never reads
+the journal and never writes anywhere but the path it is given.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from cc_daemon import __version__
+from cc_daemon.export import OptionalDependencyError
+from cc_daemon.store.reader import CastRecord, SampleRecord
+
+TIME_UNITS = "seconds since 1970-01-01 00:00:00 UTC"
+PHASE_FLAGS = ("soaking", "descending", "dwelling", "ascending", "aborting", "stranded")
+OUTCOME_FLAGS = ("completed", "skipped-shallow", "aborted", "unfinished", "running")
+BYTE_FILL = -127
+
+
+def _flag_meanings(names: Sequence[str]) -> str:
+    # CF: flag meanings are blank-separated words; multi-word ones use underscores.
+    return " ".join(name.replace("-", "_") for name in names)
+
+
+def _nan(value: float | None) -> float:
+    return math.nan if value is None else value
+
+
+def _flag(value: str | None, names: Sequence[str]) -> int:
+    return names.index(value) if value in names else BYTE_FILL
+
+
+def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Path) -> int:
+    """Write `casts` and their `samples` as CF profiles to `path`; return the sample count.
+
+    Samples of casts not in `casts` are left out (a profile needs its station).
+    Raises `ValueError` when there is no cast to write, `OptionalDependencyError`
+    when netCDF4 is missing.
+    """
+    try:
+        import netCDF4
+        import numpy as np
+    except ImportError as exc:
+        raise OptionalDependencyError("NetCDF export", "netCDF4", "netcdf") from exc
+    if not casts:
+        raise ValueError("no casts to export")
+
+    order = {cast.id: index for index, cast in enumerate(casts)}
+    # The ragged array needs each profile's samples together, in profile order.
+    kept = sorted(
+        (s for s in samples if s.cast_id in order),
+        key=lambda s: (order[s.cast_id], s.mono_s),
+    )
+    counts = Counter(s.cast_id for s in kept)
+
+    with netCDF4.Dataset(str(path), "w", format="NETCDF4_CLASSIC") as nc:
+        nc.Conventions = "CF-1.8"
+        nc.featureType = "profile"
+        nc.cdm_data_type = "Profile"
+        nc.title = "Probe casts of an autonomous survey boat"
+        nc.source = f"cc-daemon {__version__} survey journal"
+        nc.date_created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        nc.comment = (
+            "Times are the companion computer's wall clock; clock_synced = 0 marks"
+            " profiles recorded before the clock was synchronised. Positions are the"
+            " station where the autopilot asked for the cast."
+        )
+        nc.createDimension("profile", len(casts))
+        nc.createDimension("obs", len(kept))
+
+        def var(name: str, kind: str, dim: str, **attrs: Any) -> Any:
+            fill = attrs.pop("_FillValue", None)
+            variable = nc.createVariable(name, kind, (dim,), fill_value=fill)
+            variable.setncatts(attrs)
+            return variable
+
+        var("profile", "i4", "profile", cf_role="profile_id", long_name="cast id")[:] = [
+            c.id for c in casts
+        ]
+        var(
+            "time",
+            "f8",
+            "profile",
+            standard_name="time",
+            long_name="start of the cast",
+            units=TIME_UNITS,
+            calendar="standard",
+            axis="T",
+        )[:] = [c.start_wall_s for c in casts]
+        var(
+            "lat",
+            "f8",
+            "profile",
+            standard_name="latitude",
+            long_name="station latitude",
+            units="degrees_north",
+            axis="Y",
+        )[:] = [c.lat_deg for c in casts]
+        var(
+            "lon",
+            "f8",
+            "profile",
+            standard_name="longitude",
+            long_name="station longitude",
+            units="degrees_east",
+            axis="X",
+        )[:] = [c.lon_deg for c in casts]
+        var(
+            "row_size",
+            "i4",
+            "profile",
+            long_name="number of samples in this profile",
+            sample_dimension="obs",
+        )[:] = [counts.get(c.id, 0) for c in casts]
+        var(
+            "clock_synced",
+            "i1",
+            "profile",
+            long_name="wall clock synchronised at the start of the cast",
+            flag_values=np.array([0, 1], dtype="i1"),
+            flag_meanings="not_synchronised synchronised",
+        )[:] = [int(c.start_clock_synced) for c in casts]
+        var(
+            "outcome",
+            "i1",
+            "profile",
+            _FillValue=BYTE_FILL,
+            long_name="how the cast ended",
+            flag_values=np.arange(len(OUTCOME_FLAGS), dtype="i1"),
+            flag_meanings=_flag_meanings(OUTCOME_FLAGS),
+        )[:] = [_flag(c.outcome or "running", OUTCOME_FLAGS) for c in casts]
+        depth_attrs = {"units": "m", "positive": "down", "_FillValue": math.nan}
+        var(
+            "water_depth",
+            "f4",
+            "profile",
+            long_name="distance to the bottom from the boat's sonar at the station",
+            **depth_attrs,
+        )[:] = [c.water_depth_m for c in casts]
+        var(
+            "sonar_confidence",
+            "i1",
+            "profile",
+            long_name="sonar confidence of water_depth",
+            units="percent",
+        )[:] = [c.sonar_confidence_pct for c in casts]
+        var("planned_depth", "f4", "profile", long_name="planned probe depth", **depth_attrs)[:] = [
+            c.planned_depth_m for c in casts
+        ]
+        var("reached_depth", "f4", "profile", long_name="deepest probe depth", **depth_attrs)[:] = [
+            _nan(c.reached_depth_m) for c in casts
+        ]
+
+        var(
+            "obs_time",
+            "f8",
+            "obs",
+            long_name="time of the sample",
+            units=TIME_UNITS,
+            calendar="standard",
+        )[:] = [s.wall_s for s in kept]
+        var(
+            "depth",
+            "f4",
+            "obs",
+            standard_name="depth",
+            long_name="probe depth below the surface",
+            units="m",
+            positive="down",
+            axis="Z",
+        )[:] = [s.depth_m for s in kept]
+        var(
+            "phase",
+            "i1",
+            "obs",
+            _FillValue=BYTE_FILL,
+            long_name="cast phase of the sample",
+            flag_values=np.arange(len(PHASE_FLAGS), dtype="i1"),
+            flag_meanings=_flag_meanings(PHASE_FLAGS),
+            coordinates="time lat lon depth",
+        )[:] = [_flag(s.phase, PHASE_FLAGS) for s in kept]
+    return len(kept)

@@ -1,0 +1,183 @@
+"""Plots of the journal: one cast's depth against time, and the survey map.
+
+This module owns the two figures of `cc-daemon plot`: a cast (probe depth
+against time since the cast started, depth increasing downward, the phases
+shaded, the planned depth and the sonar's bottom drawn as lines) and a survey
+(the boat's track coloured by the sonar's water depth, the stations marked
+with the depth each cast reached).
+
+matplotlib is the optional `plot` extra: it is imported when a plot is drawn,
+never when this module is imported, and a missing one raises
+`OptionalDependencyError`. It draws with the object-oriented API on the Agg
+backend (no pyplot, no global figure state, no display needed on the Pi). It
+never reads the journal itself.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from cc_daemon.export import OptionalDependencyError
+from cc_daemon.store.reader import CastRecord, FixRecord, SampleRecord, iso_utc
+
+PHASE_COLOURS = {
+    "soaking": "#8dd3c7",
+    "descending": "#80b1d3",
+    "dwelling": "#b3de69",
+    "ascending": "#fdb462",
+    "aborting": "#fb8072",
+    "stranded": "#bc80bd",
+}
+DPI = 120
+
+
+def _figure(width_in: float, height_in: float) -> Any:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        from matplotlib.figure import Figure
+    except ImportError as exc:
+        raise OptionalDependencyError("plotting", "matplotlib", "plot") from exc
+    return Figure(figsize=(width_in, height_in), layout="constrained")
+
+
+def _phase_spans(times: Sequence[float], phases: Sequence[str]) -> list[tuple[str, float, float]]:
+    """Runs of one phase as (phase, start, end); a run ends where the next begins."""
+    spans: list[tuple[str, float, float]] = []
+    start = 0
+    for i in range(1, len(times) + 1):
+        if i == len(times) or phases[i] != phases[start]:
+            end = times[i] if i < len(times) else times[-1]
+            spans.append((phases[start], times[start], end))
+            start = i
+    return spans
+
+
+def plot_cast(cast: CastRecord, samples: Sequence[SampleRecord], path: Path) -> None:
+    """Write a PNG of cast `cast`'s depth against time to `path`."""
+    if not samples:
+        raise ValueError(f"cast {cast.id} has no depth samples to plot")
+    fig = _figure(8.0, 4.5)
+    from matplotlib.patches import Patch  # after _figure, which reports a missing matplotlib
+
+    ax = fig.add_subplot()
+    times = [s.mono_s - cast.start_mono_s for s in samples]
+    depths = [s.depth_m for s in samples]
+    phases = [s.phase for s in samples]
+
+    seen: dict[str, None] = {}
+    for phase, start, end in _phase_spans(times, phases):
+        ax.axvspan(start, end, color=PHASE_COLOURS.get(phase, "#d9d9d9"), alpha=0.5, lw=0)
+        seen.setdefault(phase)
+    handles: list[Any] = [
+        Patch(color=PHASE_COLOURS.get(p, "#d9d9d9"), alpha=0.5, label=p) for p in seen
+    ]
+    (line,) = ax.plot(times, depths, color="black", marker=".", lw=1.2, label="probe depth")
+    handles.insert(0, line)
+    handles.append(
+        ax.axhline(cast.planned_depth_m, color="tab:blue", ls="--", lw=1, label="planned depth")
+    )
+    deepest = max([*depths, cast.planned_depth_m])
+    if cast.sonar_confidence_pct > 0:
+        handles.append(
+            ax.axhline(
+                cast.water_depth_m,
+                color="saddlebrown",
+                lw=1.5,
+                label=f"bottom (sonar, {cast.sonar_confidence_pct} %)",
+            )
+        )
+        deepest = max(deepest, cast.water_depth_m)
+    ax.set_ylim(deepest * 1.08 + 0.1, 0.0)  # depth grows downward, the surface on top
+    ax.set_xlim(min(times[0], 0.0), max(times[-1], 1.0))
+    ax.set_xlabel("time since the cast started (s)")
+    ax.set_ylabel("depth (m)")
+    clock = "" if cast.start_clock_synced else " (clock not synchronised)"
+    ax.set_title(
+        f"Cast {cast.id} · {_when(cast.start_wall_s)}{clock} · {cast.outcome or 'running'}"
+        f" · reached {_metres(cast.reached_depth_m)}"
+    )
+    ax.grid(True, alpha=0.3)
+    ax.legend(handles=handles, loc="lower left", fontsize="small", framealpha=0.9)
+    fig.savefig(path, dpi=DPI, format="png")
+
+
+def plot_survey(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], path: Path) -> None:
+    """Write a PNG map of the track (coloured by sonar depth) and the stations to `path`."""
+    if not fixes and not casts:
+        raise ValueError("the journal holds no track and no cast to plot")
+    lons = [f.lon_deg for f in fixes] + [c.lon_deg for c in casts]
+    lats = [f.lat_deg for f in fixes] + [c.lat_deg for c in casts]
+    # Same ground distance per unit on both axes: a degree of longitude
+    # shrinks with the cosine of the latitude.
+    aspect = 1.0 / max(math.cos(math.radians(sum(lats) / len(lats))), 0.01)
+    width_m = max(max(lons) - min(lons), 1e-6) / aspect
+    height_m = max(max(lats) - min(lats), 1e-6)
+    fig = _figure(9.0, min(max(7.0 * height_m / width_m, 4.0), 11.0) + 1.5)
+    from matplotlib.ticker import MaxNLocator  # after _figure, which reports a missing matplotlib
+
+    ax = fig.add_subplot()
+    if fixes:
+        ax.plot(
+            [f.lon_deg for f in fixes],
+            [f.lat_deg for f in fixes],
+            color="0.6",
+            lw=0.8,
+            zorder=1,
+            label="track",
+        )
+        # A zero-confidence reading is no reading: grey track only, no colour.
+        sounded = [f for f in fixes if f.sonar_confidence_pct > 0]
+        if sounded:
+            points = ax.scatter(
+                [f.lon_deg for f in sounded],
+                [f.lat_deg for f in sounded],
+                c=[f.sonar_distance_m for f in sounded],
+                cmap="viridis_r",
+                s=6,
+                lw=0,
+                zorder=2,
+            )
+            fig.colorbar(points, ax=ax, label="water depth from the sonar (m)", shrink=0.8)
+    if casts:
+        ax.scatter(
+            [c.lon_deg for c in casts],
+            [c.lat_deg for c in casts],
+            marker="v",
+            s=60,
+            color="crimson",
+            edgecolors="black",
+            zorder=3,
+            label="station: cast id, reached depth",
+        )
+        for c in casts:
+            ax.annotate(
+                f"#{c.id} {_metres(c.reached_depth_m)}",
+                (c.lon_deg, c.lat_deg),
+                xytext=(5, 4),
+                textcoords="offset points",
+                fontsize="x-small",
+                zorder=4,
+            )
+    ax.set_aspect(aspect)
+    ax.xaxis.set_major_locator(MaxNLocator(5))
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.set_xlabel("longitude (°E)")
+    ax.set_ylabel("latitude (°N)")
+    first = min([f.wall_s for f in fixes] + [c.start_wall_s for c in casts])
+    ax.set_title(f"Survey from {_when(first)}\n{len(fixes)} fixes, {len(casts)} casts")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncols=2, fontsize="small")
+    fig.savefig(path, dpi=DPI, format="png")
+
+
+def _when(wall_s: float) -> str:
+    return iso_utc(wall_s)[:19] + "Z"
+
+
+def _metres(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f} m"

@@ -1,0 +1,38 @@
+"""The survey journal: a SQLite file holding every fix, cast, sample and event.
+
+Import from here. `Journal` is the write side the daemon uses from its event
+loop; `JournalReader` is the read side for the `casts`, `export` and `plot`
+commands; `schema` owns the file layout and its migrations. Nothing in this
+package imports asyncio: the journal's thread is invisible to its callers.
+"""
+
+from cc_daemon.store.journal import (
+    OUTCOMES,
+    PHASES,
+    Journal,
+    JournalHealth,
+    default_store_path,
+)
+from cc_daemon.store.reader import (
+    CastRecord,
+    EventRecord,
+    FixRecord,
+    JournalReader,
+    SampleRecord,
+)
+from cc_daemon.store.schema import SCHEMA_VERSION, StoreError
+
+__all__ = [
+    "OUTCOMES",
+    "PHASES",
+    "SCHEMA_VERSION",
+    "CastRecord",
+    "EventRecord",
+    "FixRecord",
+    "Journal",
+    "JournalHealth",
+    "JournalReader",
+    "SampleRecord",
+    "StoreError",
+    "default_store_path",
+]

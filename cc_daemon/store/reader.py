@@ -1,0 +1,302 @@
+"""The journal's read side: casts, samples, fixes and events as records in SI units.
+
+This module owns opening a journal file for the `casts`, `export` and `plot`
+commands and the queries that turn its rows into records in degrees, metres
+and seconds. It must never write to the file: it opens it read-only (SQLite
+`mode=ro`), so it can run beside the daemon (WAL lets one writer and readers
+work at once) and never marks a running cast `unfinished` (only the daemon's
+`Journal.open()` may decide that a cast was left by a crash). A file from an
+older cc-daemon is migrated in a private in-memory copy, never in place.
+
+All the reads of one `JournalReader` see one snapshot of the file, so a cast
+and its samples agree even while the daemon is writing.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from cc_daemon.store import schema
+from cc_daemon.store.schema import StoreError
+
+
+class CastRecord(NamedTuple):
+    id: int
+    session_id: int | None
+    start_mono_s: float
+    start_wall_s: float
+    start_clock_synced: bool
+    ap_timestamp_s: int
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    water_depth_m: float  # the sonar distance in the cast's `M` frame
+    sonar_confidence_pct: int
+    planned_depth_m: float
+    mode: str
+    plan: dict[str, Any]
+    end_mono_s: float | None
+    end_wall_s: float | None
+    outcome: str | None  # None while the cast runs (or until the daemon reopens the file)
+    reached_depth_m: float | None
+    reason: str | None
+    samples: int
+
+
+class SampleRecord(NamedTuple):
+    cast_id: int
+    mono_s: float
+    wall_s: float
+    clock_synced: bool
+    depth_m: float
+    phase: str
+    lat_deg: float | None  # the station's position: the boat holds it during the cast
+    lon_deg: float | None
+
+
+class FixRecord(NamedTuple):
+    session_id: int | None
+    mono_s: float
+    wall_s: float
+    clock_synced: bool
+    frame: str
+    ap_timestamp_s: int
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    sonar_distance_m: float
+    sonar_confidence_pct: int
+
+
+class EventRecord(NamedTuple):
+    session_id: int | None
+    mono_s: float
+    wall_s: float
+    clock_synced: bool
+    kind: str
+    detail: dict[str, Any]
+
+
+def iso_utc(wall_s: float | None) -> str:
+    """Unix seconds as ISO 8601 UTC with milliseconds and a `Z`; '' for None."""
+    if wall_s is None:
+        return ""
+    stamp = datetime.fromtimestamp(wall_s, tz=UTC).isoformat(timespec="milliseconds")
+    return stamp.replace("+00:00", "Z")
+
+
+def parse_time(text: str) -> float:
+    """ISO 8601 (`2024-05-01`, `2024-05-01T10:00Z`, with an offset) as Unix seconds.
+
+    A time without an offset is taken as UTC, like every time in the journal.
+    """
+    stamp = datetime.fromisoformat(text.strip())
+    if stamp.tzinfo is None:
+        stamp = stamp.replace(tzinfo=UTC)
+    return stamp.timestamp()
+
+
+_CAST_COLUMNS = (
+    "id, session_id, start_mono_s, start_wall_s, start_clock_synced, ap_timestamp_s,"
+    " lat_e7, lon_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct, planned_depth_m, mode,"
+    " plan_json, end_mono_s, end_wall_s, outcome, reached_depth_m, reason,"
+    " (SELECT count(*) FROM samples WHERE cast_id = casts.id)"
+)
+_FIX_COLUMNS = (
+    "session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s, lat_e7, lon_e7, alt_mm,"
+    " sonar_distance_mm, sonar_confidence_pct"
+)
+
+
+def _cast(row: tuple[Any, ...]) -> CastRecord:
+    try:
+        plan = json.loads(row[13])
+    except ValueError:
+        plan = {"unreadable_plan": row[13]}
+    return CastRecord(
+        id=row[0],
+        session_id=row[1],
+        start_mono_s=row[2],
+        start_wall_s=row[3],
+        start_clock_synced=bool(row[4]),
+        ap_timestamp_s=row[5],
+        lat_deg=row[6] / 1e7,
+        lon_deg=row[7] / 1e7,
+        alt_m=row[8] / 1000.0,
+        water_depth_m=row[9] / 1000.0,
+        sonar_confidence_pct=row[10],
+        planned_depth_m=row[11],
+        mode=row[12],
+        plan=plan if isinstance(plan, dict) else {"plan": plan},
+        end_mono_s=row[14],
+        end_wall_s=row[15],
+        outcome=row[16],
+        reached_depth_m=row[17],
+        reason=row[18],
+        samples=row[19],
+    )
+
+
+def _fix(row: tuple[Any, ...]) -> FixRecord:
+    return FixRecord(
+        session_id=row[0],
+        mono_s=row[1],
+        wall_s=row[2],
+        clock_synced=bool(row[3]),
+        frame=row[4],
+        ap_timestamp_s=row[5],
+        lat_deg=row[6] / 1e7,
+        lon_deg=row[7] / 1e7,
+        alt_m=row[8] / 1000.0,
+        sonar_distance_m=row[9] / 1000.0,
+        sonar_confidence_pct=row[10],
+    )
+
+
+class JournalReader:
+    """A read-only, consistent view of one journal file. Use as a context manager."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise StoreError(f"no journal at {self.path}")
+        try:
+            conn = sqlite3.connect(
+                f"{self.path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None
+            )
+        except sqlite3.Error as exc:
+            raise StoreError(f"cannot open {self.path}: {exc}") from exc
+        try:
+            version = schema.file_version(conn)
+            if version < schema.SCHEMA_VERSION:
+                conn = self._migrated_copy(conn)
+            # One read transaction for the reader's life: one snapshot.
+            conn.execute("BEGIN")
+            conn.execute("SELECT count(*) FROM casts").fetchone()
+        except StoreError as exc:
+            conn.close()
+            raise StoreError(f"{self.path}: {exc}") from exc
+        except sqlite3.Error as exc:
+            conn.close()
+            raise StoreError(f"cannot read {self.path}: {exc}") from exc
+        self._conn = conn
+
+    @staticmethod
+    def _migrated_copy(conn: sqlite3.Connection) -> sqlite3.Connection:
+        copy = sqlite3.connect(":memory:", isolation_level=None)
+        try:
+            conn.backup(copy)
+            schema.migrate(copy)
+        except BaseException:
+            copy.close()
+            raise
+        finally:
+            conn.close()
+        return copy
+
+    def close(self) -> None:
+        self._conn.close()
+
+    def __enter__(self) -> JournalReader:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def casts(self, *, cast_id: int | None = None, since: float | None = None) -> list[CastRecord]:
+        """Casts by id; `since` keeps those started at or after that Unix time."""
+        where, params = self._filters(("id", cast_id), ("start_wall_s >=", since))
+        rows = self._conn.execute(f"SELECT {_CAST_COLUMNS} FROM casts{where} ORDER BY id", params)
+        return [_cast(row) for row in rows]
+
+    def samples(
+        self, *, cast_id: int | None = None, since: float | None = None
+    ) -> list[SampleRecord]:
+        """Samples by cast, in time order, with their station's position."""
+        where, params = self._filters(("s.cast_id", cast_id), ("s.wall_s >=", since))
+        rows = self._conn.execute(
+            "SELECT s.cast_id, s.mono_s, s.wall_s, s.clock_synced, s.depth_m, s.phase,"
+            f" c.lat_e7, c.lon_e7 FROM samples s LEFT JOIN casts c ON c.id = s.cast_id{where}"
+            " ORDER BY s.cast_id, s.mono_s, s.id",
+            params,
+        )
+        return [
+            SampleRecord(
+                cast_id=r[0],
+                mono_s=r[1],
+                wall_s=r[2],
+                clock_synced=bool(r[3]),
+                depth_m=r[4],
+                phase=r[5],
+                lat_deg=None if r[6] is None else r[6] / 1e7,
+                lon_deg=None if r[7] is None else r[7] / 1e7,
+            )
+            for r in rows
+        ]
+
+    def fixes(self, *, cast_id: int | None = None, since: float | None = None) -> list[FixRecord]:
+        """Fixes in the order received; with `cast_id`, those received during that cast."""
+        clauses: list[str] = []
+        params: list[object] = []
+        if cast_id is not None:
+            found = self.casts(cast_id=cast_id)
+            if not found:
+                return []
+            cast = found[0]
+            end_mono, end_wall = self._cast_end(cast)
+            if cast.session_id is not None:
+                # Monotonic time is exact within a session, even if the wall clock jumped.
+                clauses.append("session_id = ? AND mono_s BETWEEN ? AND ?")
+                params += [cast.session_id, cast.start_mono_s, end_mono]
+            else:
+                clauses.append("wall_s BETWEEN ? AND ?")
+                params += [cast.start_wall_s, end_wall]
+        if since is not None:
+            clauses.append("wall_s >= ?")
+            params.append(since)
+        where = f" WHERE {' AND '.join(clauses)}" if clauses else ""
+        rows = self._conn.execute(f"SELECT {_FIX_COLUMNS} FROM fixes{where} ORDER BY id", params)
+        return [_fix(row) for row in rows]
+
+    def events(self, *, since: float | None = None) -> list[EventRecord]:
+        where, params = self._filters(("wall_s >=", since))
+        rows = self._conn.execute(
+            "SELECT session_id, mono_s, wall_s, clock_synced, kind, detail_json"
+            f" FROM events{where} ORDER BY id",
+            params,
+        )
+        records = []
+        for r in rows:
+            try:
+                detail = json.loads(r[5])
+            except ValueError:
+                detail = {"unreadable_detail": r[5]}
+            records.append(EventRecord(r[0], r[1], r[2], bool(r[3]), r[4], detail))
+        return records
+
+    def _cast_end(self, cast: CastRecord) -> tuple[float, float]:
+        """When a cast's data ends: its end row, else its last sample, else its start."""
+        if cast.end_mono_s is not None and cast.end_wall_s is not None:
+            return cast.end_mono_s, cast.end_wall_s
+        last = self._conn.execute(
+            "SELECT max(mono_s), max(wall_s) FROM samples WHERE cast_id = ?", (cast.id,)
+        ).fetchone()
+        if last[0] is None:
+            return cast.start_mono_s, cast.start_wall_s
+        return float(last[0]), float(last[1])
+
+    @staticmethod
+    def _filters(*pairs: tuple[str, object]) -> tuple[str, list[object]]:
+        clauses: list[str] = []
+        params: list[object] = []
+        for column, value in pairs:
+            if value is not None:
+                clauses.append(
+                    f"{column} ?" if column.endswith(("=", "<", ">")) else f"{column} = ?"
+                )
+                params.append(value)
+        return (f" WHERE {' AND '.join(clauses)}" if clauses else ""), params

@@ -1,0 +1,226 @@
+"""Exports parse in the formats' own terms: csv, RFC 7946 GeoJSON, CF profile NetCDF."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import sys
+from datetime import datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from cc_daemon.export import OptionalDependencyError, geojson, netcdf
+from cc_daemon.export import csv as csv_export
+from cc_daemon.store import PHASES, Journal, JournalReader
+from cc_daemon.store.synthetic import FakeClock, SurveySummary, write_survey
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SurveySummary]:
+    """An hour of survey: 3,600 fixes and a cast every ten minutes, the first skipped."""
+    db = tmp_path_factory.mktemp("survey") / "j.db"
+    clock = FakeClock()
+    journal = Journal(db, monotonic=clock.monotonic, wall=clock.wall)
+    journal.open()
+    summary = write_survey(journal, clock, duration_s=3600, cast_every_s=600)
+    journal.close()
+    assert journal.health().dropped_rows == 0
+    return db, summary
+
+
+def parse_utc(text: str) -> datetime:
+    assert text.endswith("Z"), text
+    stamp = datetime.fromisoformat(text)
+    assert stamp.utcoffset() == timedelta(0)
+    return stamp
+
+
+def test_samples_csv_has_one_row_per_sample(survey: tuple[Path, SurveySummary]) -> None:
+    db, summary = survey
+    out = io.StringIO()
+    with JournalReader(db) as reader:
+        records = reader.samples()
+        casts = {c.id: c for c in reader.casts()}
+    assert csv_export.write_samples(records, out) == summary.samples
+    rows = list(csv.DictReader(io.StringIO(out.getvalue())))
+    assert list(rows[0]) == list(csv_export.SAMPLE_COLUMNS)
+    assert len(rows) == summary.samples
+    for row, record in zip(rows, records, strict=True):
+        cast = casts[int(row["cast_id"])]
+        assert parse_utc(row["time_utc"]).timestamp() == pytest.approx(record.wall_s, abs=1e-3)
+        assert float(row["lat"]) == pytest.approx(cast.lat_deg, abs=1e-7)
+        assert float(row["lon"]) == pytest.approx(cast.lon_deg, abs=1e-7)
+        assert 0.0 <= float(row["depth_m"]) <= cast.planned_depth_m
+        assert row["phase"] in PHASES
+        assert row["clock_synced"] == "0"
+    by_cast: dict[str, list[float]] = {}
+    for row in rows:
+        by_cast.setdefault(row["cast_id"], []).append(float(row["monotonic_s"]))
+    assert all(times == sorted(times) for times in by_cast.values())
+    assert len(by_cast) == summary.casts - summary.skipped
+
+
+def test_telemetry_csv_has_one_row_per_fix(survey: tuple[Path, SurveySummary]) -> None:
+    db, summary = survey
+    out = io.StringIO()
+    with JournalReader(db) as reader:
+        fixes = reader.fixes()
+    csv_export.write_fixes(fixes, out)
+    rows = list(csv.DictReader(io.StringIO(out.getvalue())))
+    assert len(rows) == summary.fixes
+    assert sum(row["frame"] == "P-M" for row in rows) == summary.casts
+    first = rows[0]
+    assert first["time_utc"] == "2024-06-01T08:00:00.000Z"
+    assert (float(first["lat"]), float(first["lon"])) == (40.4506308, -3.7260579)
+    assert float(first["sonar_depth_m"]) == pytest.approx(fixes[0].sonar_distance_m)
+    assert float(first["alt_m"]) == 702.385
+
+
+def test_events_csv_holds_json_details(survey: tuple[Path, SurveySummary]) -> None:
+    db, summary = survey
+    out = io.StringIO()
+    with JournalReader(db) as reader:
+        assert csv_export.write_events(reader.events(), out) == summary.events
+    rows = list(csv.DictReader(io.StringIO(out.getvalue())))
+    assert [r["kind"] for r in rows] == ["daemon_started", "daemon_stopped"]
+    assert json.loads(rows[0]["detail"]) == {"version": "synthetic"}
+
+
+def check_rfc7946(doc: Any) -> None:
+    """The structure RFC 7946 requires of what we write (and QGIS relies on)."""
+    assert doc["type"] == "FeatureCollection"
+    assert "crs" not in doc  # RFC 7946 4: WGS 84 only, no crs member
+    assert isinstance(doc["features"], list)
+
+    def position(p: Any) -> None:
+        assert isinstance(p, list) and len(p) == 2
+        lon, lat = p
+        assert all(isinstance(v, float | int) and math.isfinite(v) for v in p)
+        assert -180.0 <= lon <= 180.0 and -90.0 <= lat <= 90.0
+
+    for feature in doc["features"]:
+        assert feature["type"] == "Feature"
+        assert isinstance(feature["properties"], dict)
+        if "id" in feature:
+            assert isinstance(feature["id"], str | int)
+        geometry = feature["geometry"]
+        if geometry["type"] == "Point":
+            position(geometry["coordinates"])
+        elif geometry["type"] == "LineString":
+            assert len(geometry["coordinates"]) >= 2
+            for p in geometry["coordinates"]:
+                position(p)
+        else:
+            pytest.fail(f"unexpected geometry {geometry['type']}")
+
+
+def test_geojson_is_a_valid_feature_collection_of_the_survey(
+    survey: tuple[Path, SurveySummary],
+) -> None:
+    db, summary = survey
+    out = io.StringIO()
+    with JournalReader(db) as reader:
+        casts, fixes = reader.casts(), reader.fixes()
+    count = geojson.write(casts, fixes, out)
+    doc = json.loads(out.getvalue())
+    check_rfc7946(doc)
+    assert count == len(doc["features"]) == summary.casts + 1 + summary.fixes
+    kinds = [f["properties"]["feature"] for f in doc["features"]]
+    assert kinds.count("station") == summary.casts
+    assert kinds.count("track") == 1
+    assert kinds.count("sounding") == summary.fixes
+
+    stations = [f for f in doc["features"] if f["properties"]["feature"] == "station"]
+    first = stations[0]
+    assert first["geometry"]["coordinates"] == [casts[0].lon_deg, casts[0].lat_deg]  # [lon, lat]
+    props = first["properties"]
+    assert props["outcome"] == "skipped-shallow"
+    assert props["samples"] == 0
+    assert props["water_depth_m"] == casts[0].water_depth_m
+    parse_utc(props["start_utc"])
+    completed = stations[1]["properties"]
+    assert completed["outcome"] == "completed"
+    assert completed["reached_depth_m"] == pytest.approx(completed["planned_depth_m"])
+
+    (track,) = [f for f in doc["features"] if f["properties"]["feature"] == "track"]
+    assert len(track["geometry"]["coordinates"]) == summary.fixes
+    sounding = next(f for f in doc["features"] if f["properties"]["feature"] == "sounding")
+    assert set(sounding["properties"]) >= {"depth_m", "confidence_pct", "time_utc"}
+
+
+def test_geojson_of_one_cast_has_the_track_while_it_ran(
+    survey: tuple[Path, SurveySummary],
+) -> None:
+    db, _ = survey
+    with JournalReader(db) as reader:
+        casts = reader.casts(cast_id=2)
+        fixes = reader.fixes(cast_id=2)
+    doc = geojson.feature_collection(casts, fixes)
+    check_rfc7946(doc)
+    (track,) = [f for f in doc["features"] if f["properties"]["feature"] == "track"]
+    station = doc["features"][0]["geometry"]["coordinates"]
+    # The boat holds the station during the cast: every fix is where the cast is.
+    assert {tuple(p) for p in track["geometry"]["coordinates"]} == {tuple(station)}
+    assert len(fixes) == casts[0].samples + 1  # one a second, plus the `M` frame
+
+
+def test_geojson_without_a_track_has_no_degenerate_line() -> None:
+    doc = geojson.feature_collection([], [])
+    check_rfc7946(doc)
+    assert doc["features"] == []
+
+
+def test_netcdf_follows_the_cf_profile_conventions(
+    survey: tuple[Path, SurveySummary], tmp_path: Path
+) -> None:
+    netCDF4 = pytest.importorskip("netCDF4")
+    db, summary = survey
+    path = tmp_path / "casts.nc"
+    with JournalReader(db) as reader:
+        casts, samples = reader.casts(), reader.samples()
+    assert netcdf.write(casts, samples, path) == summary.samples
+    with netCDF4.Dataset(path) as nc:
+        nc.set_auto_mask(False)
+        assert nc.featureType == "profile"
+        assert nc.Conventions.startswith("CF-")
+        assert nc.data_model == "NETCDF4_CLASSIC"
+        assert len(nc.dimensions["profile"]) == summary.casts
+        assert len(nc.dimensions["obs"]) == summary.samples
+        assert nc["profile"].cf_role == "profile_id"
+        assert nc["row_size"].sample_dimension == "obs"
+        assert nc["time"].units == "seconds since 1970-01-01 00:00:00 UTC"
+        assert nc["lat"].standard_name == "latitude" and nc["lon"].units == "degrees_east"
+        assert nc["depth"].positive == "down" and nc["depth"].axis == "Z"
+        assert nc["phase"].coordinates == "time lat lon depth"
+        assert list(nc["profile"][:]) == [c.id for c in casts]
+        assert list(nc["time"][:]) == [c.start_wall_s for c in casts]
+        assert list(nc["lat"][:]) == [c.lat_deg for c in casts]
+        row_size = list(nc["row_size"][:])
+        assert row_size == [c.samples for c in casts]
+        outcomes = nc["outcome"].flag_meanings.split()
+        assert outcomes[nc["outcome"][0]] == "skipped_shallow"
+
+        phases = nc["phase"].flag_meanings.split()
+        depth, phase = nc["depth"][:], nc["phase"][:]
+        start = 0
+        for cast, size in zip(casts, row_size, strict=True):
+            mine = [s for s in samples if s.cast_id == cast.id]
+            assert list(depth[start : start + size]) == pytest.approx([s.depth_m for s in mine])
+            assert [phases[p] for p in phase[start : start + size]] == [s.phase for s in mine]
+            start += size
+        assert list(nc["reached_depth"][:]) == pytest.approx([c.reached_depth_m for c in casts])
+
+
+def test_netcdf_needs_its_extra_and_a_cast(
+    survey: tuple[Path, SurveySummary], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with pytest.raises(ValueError, match="no casts"):
+        netcdf.write([], [], tmp_path / "empty.nc")
+    monkeypatch.setitem(sys.modules, "netCDF4", None)  # import netCDF4 now fails
+    with pytest.raises(OptionalDependencyError, match=r"pip install 'cc-daemon\[netcdf\]'"):
+        netcdf.write([], [], tmp_path / "x.nc")
+    assert not (tmp_path / "x.nc").exists()

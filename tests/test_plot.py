@@ -1,0 +1,88 @@
+"""Plots are real, non-empty PNGs; a missing matplotlib gives a clear message."""
+
+from __future__ import annotations
+
+import struct
+import sys
+import zlib
+from pathlib import Path
+
+import pytest
+
+from cc_daemon.export import OptionalDependencyError
+from cc_daemon.plot import plot_cast, plot_survey
+from cc_daemon.store import Journal, JournalReader
+from cc_daemon.store.synthetic import FakeClock, write_survey
+
+pytest.importorskip("matplotlib")
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def survey_db(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    db = tmp_path_factory.mktemp("survey") / "j.db"
+    clock = FakeClock()
+    journal = Journal(db, monotonic=clock.monotonic, wall=clock.wall)
+    journal.open()
+    write_survey(journal, clock, duration_s=1800, cast_every_s=600)
+    journal.close()
+    return db
+
+
+def check_png(path: Path, *, min_size: tuple[int, int]) -> tuple[int, int]:
+    """Walk the PNG's chunks (CRCs included); return its width and height."""
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE
+    assert len(data) > 10_000  # a real figure, not an empty canvas
+    offset, chunks = 8, []
+    while offset < len(data):
+        (length,) = struct.unpack(">I", data[offset : offset + 4])
+        kind = data[offset + 4 : offset + 8]
+        body = data[offset + 8 : offset + 8 + length]
+        (crc,) = struct.unpack(">I", data[offset + 8 + length : offset + 12 + length])
+        assert zlib.crc32(kind + body) == crc, kind
+        chunks.append(kind)
+        offset += 12 + length
+    assert chunks[0] == b"IHDR" and chunks[-1] == b"IEND" and b"IDAT" in chunks
+    width, height = struct.unpack(">II", data[16:24])
+    assert width >= min_size[0] and height >= min_size[1]
+    return width, height
+
+
+def test_cast_plot_is_a_png(survey_db: Path, tmp_path: Path) -> None:
+    with JournalReader(survey_db) as reader:
+        cast = reader.casts(cast_id=2)[0]
+        samples = reader.samples(cast_id=2)
+    path = tmp_path / "cast.png"
+    plot_cast(cast, samples, path)
+    assert check_png(path, min_size=(800, 450)) == (960, 540)
+
+
+def test_survey_plot_is_a_png(survey_db: Path, tmp_path: Path) -> None:
+    with JournalReader(survey_db) as reader:
+        casts, fixes = reader.casts(), reader.fixes()
+    path = tmp_path / "survey.png"
+    plot_survey(casts, fixes, path)
+    check_png(path, min_size=(1000, 600))
+
+
+def test_nothing_to_plot_is_an_error_not_an_empty_picture(survey_db: Path, tmp_path: Path) -> None:
+    with JournalReader(survey_db) as reader:
+        skipped = reader.casts(cast_id=1)[0]
+    assert skipped.outcome == "skipped-shallow"
+    with pytest.raises(ValueError, match="no depth samples"):
+        plot_cast(skipped, [], tmp_path / "cast.png")
+    with pytest.raises(ValueError, match="no track and no cast"):
+        plot_survey([], [], tmp_path / "survey.png")
+    assert not list(tmp_path.iterdir())
+
+
+def test_missing_matplotlib_says_which_extra_to_install(
+    survey_db: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with JournalReader(survey_db) as reader:
+        casts, fixes = reader.casts(), reader.fixes()
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    with pytest.raises(OptionalDependencyError, match=r"pip install 'cc-daemon\[plot\]'"):
+        plot_survey(casts, fixes, tmp_path / "survey.png")
