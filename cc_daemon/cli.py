@@ -3,16 +3,35 @@
     cc-daemon [--config PATH] [--port ...]   run the daemon (the systemd service)
     cc-daemon --simulate [...]               a whole survey against a simulated autopilot
     cc-daemon decode ...                     read frames: hex, a capture on stdin, a live port
+    cc-daemon casts | export | plot          the survey journal
+    cc-daemon simulate-autopilot --port P    the simulated autopilot alone, on a real port
+
+Exit status: 0 success; 1 a tool found problems (corrupt frames, a failed
+survey); 2 bad usage or configuration (nothing was opened); 130 the daemon was
+stopped at once by a second Ctrl-C and the probe may be down.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
+import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
 
 from cc_daemon import __version__
-from cc_daemon.decode import HexInputError, decode_chunks, parse_hex, print_events, read_stdin_chunks
+from cc_daemon.decode import (
+    HexInputError,
+    decode_chunks,
+    parse_hex,
+    print_events,
+    read_stdin_chunks,
+)
+from cc_daemon.errors import ConfigError
+
+EXIT_USAGE = 2
 
 
 def _add_decode(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -27,6 +46,7 @@ def _add_decode(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.add_argument("--accept-g-alias", action="store_true", help="decode P-G as start measuring")
     p.add_argument("--port", help="decode a live serial line until Ctrl-C")
     p.add_argument("--baudrate", type=int, default=9600, help="baud rate for --port (9600)")
+    p.set_defaults(handler=_run_decode)
 
 
 def _run_decode(args: argparse.Namespace) -> int:
@@ -37,29 +57,135 @@ def _run_decode(args: argparse.Namespace) -> int:
             return decode_port(
                 args.port, args.baudrate, as_json=args.json, accept_g_alias=args.accept_g_alias
             )
+        chunks: Iterable[bytes]
         if args.hex:
-            chunks: list[bytes] | object = [parse_hex(" ".join(args.hex))]
+            chunks = [parse_hex(" ".join(args.hex))]
         else:
             chunks = read_stdin_chunks(sys.stdin.buffer, hex_text=args.hex_stdin)
-        events = decode_chunks(chunks, accept_g_alias=args.accept_g_alias)  # type: ignore[arg-type]
-        return print_events(events, as_json=args.json)
+        return print_events(
+            decode_chunks(chunks, accept_g_alias=args.accept_g_alias), as_json=args.json
+        )
     except HexInputError as exc:
         print(f"cc-daemon decode: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
+
+
+def _add_daemon_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("daemon options (flags override env and file)")
+    group.add_argument("--config", type=Path, help="TOML configuration file")
+    group.add_argument("--port", help="serial port to the autopilot [serial.port]")
+    group.add_argument("--baudrate", type=int, help="[serial.baudrate]")
+    group.add_argument("--winch", choices=["sim", "gpio"], help="winch backend [winch.backend]")
+    group.add_argument("--db", type=Path, help="survey journal file [store.path]")
+    group.add_argument("--log-format", choices=["console", "json"], help="[log.format]")
+    group.add_argument(
+        "--log-level",
+        choices=["debug", "info", "warning", "error", "critical"],
+        help="[log.level]",
+    )
+
+
+def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The daemon flags as a nested settings dict (unset flags left out)."""
+    return {
+        "serial": {"port": args.port, "baudrate": args.baudrate},
+        "winch": {"backend": args.winch},
+        "store": {"path": args.db},
+        "log": {"format": args.log_format, "level": args.log_level},
+    }
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cc-daemon", description=__doc__.splitlines()[0])
+    from cc_daemon import datacli
+    from cc_daemon.sim import runner
+
+    parser = argparse.ArgumentParser(
+        prog="cc-daemon",
+        description="Companion-computer daemon of an autonomous survey boat.",
+        epilog="Run without a command to start the daemon.",
+    )
     parser.add_argument("--version", action="version", version=f"cc-daemon {__version__}")
+    parser.add_argument(
+        "--simulate",
+        action="store_true",
+        help="run a whole survey against a simulated autopilot over a pty pair",
+    )
+    _add_daemon_options(parser)
+    runner.add_simulate_arguments(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_decode(sub)
+    datacli.add_commands(sub)
+    runner.add_commands(sub)
     return parser
+
+
+def _load(args: argparse.Namespace) -> Any:
+    from cc_daemon.config import load_settings
+
+    return load_settings(args.config, flag_overrides(args))
+
+
+def _run_daemon(args: argparse.Namespace) -> int:
+    from cc_daemon.logsetup import configure_logging
+    from cc_daemon.service import Daemon, make_winch
+
+    settings = _load(args)
+    configure_logging(settings.log.format, settings.log.level)
+    make_winch(settings, clock=_NullClock())  # refuse an unusable backend before opening anything
+    return asyncio.run(_serve(Daemon(settings)))
+
+
+class _NullClock:
+    """Only for validating the winch choice; never asked the time."""
+
+    def monotonic(self) -> float:
+        return 0.0
+
+    def wall(self) -> float:
+        return 0.0
+
+    async def sleep_until(self, deadline: float) -> None:
+        return None
+
+
+async def _serve(daemon: Any) -> int:
+    import structlog
+
+    log = structlog.get_logger("cc_daemon.cli")
+    loop = asyncio.get_running_loop()
+    received = 0
+
+    def on_signal(signum: signal.Signals) -> None:
+        nonlocal received
+        received += 1
+        if received == 1:
+            log.info("signal received: finishing", signal=signum.name)
+            daemon.request_shutdown()
+        else:
+            log.warning("second signal: stopping at once", signal=signum.name)
+            daemon.request_shutdown(immediate=True)
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(signum, on_signal, signum)
+    code: int = await daemon.run()
+    return code
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.command == "decode":
-        return _run_decode(args)
-    parser.print_help()
-    return 0
+    try:
+        handler = getattr(args, "handler", None)
+        if handler is not None:
+            code: int = handler(args)
+            return code
+        if args.simulate:
+            from cc_daemon.sim.runner import run_from_args
+
+            return run_from_args(args, _load(args))
+        return _run_daemon(args)
+    except ConfigError as exc:
+        print(str(exc), file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        return 130

@@ -42,6 +42,7 @@ from cc_daemon.clock import Clock, SystemClock
 from cc_daemon.config import Settings
 from cc_daemon.errors import ConfigError
 from cc_daemon.link import SerialLink
+from cc_daemon.logsetup import flush_rate_limited
 from cc_daemon.protocol import (
     Ack,
     Finished,
@@ -64,7 +65,8 @@ from cc_daemon.winch.simulated import SimulatedWinch
 
 _log = structlog.get_logger("cc_daemon.service")
 
-HOUSEKEEPING_PERIOD_S = 10.0
+HOUSEKEEPING_TICK_S = 1.0
+CORRUPT_SUMMARY_EVERY = 10  # ticks
 EXIT_OK = 0
 EXIT_PROBE_MAY_BE_DOWN = 130
 
@@ -257,11 +259,19 @@ class Daemon:
             journal.record_event("daemon_stopped", exit_code=self._exit_code)
             journal.close()
         _log.info("cc-daemon stopped", exit_code=self._exit_code)
+        flush_rate_limited(everything=True)
+        self._notifier.close()
 
     async def _housekeeping(self) -> None:
-        """Periodic: corrupt-frame counts to the journal and log, systemd watchdog."""
+        """Periodic: rate-limited log summaries each second; every 10 s the
+        corrupt-frame count (journal and log) and the systemd watchdog."""
+        tick = 0
         while True:
-            await asyncio.sleep(HOUSEKEEPING_PERIOD_S)
+            await asyncio.sleep(HOUSEKEEPING_TICK_S)
+            flush_rate_limited()
+            tick += 1
+            if tick % CORRUPT_SUMMARY_EVERY:
+                continue
             self._notifier.watchdog()
             corrupt = self._parser.stats.errors
             if corrupt != self._corrupt_reported:

@@ -1,0 +1,28 @@
+"""Shared fixtures."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.daemonkit import DaemonProcess
+
+
+@pytest.fixture
+async def make_daemon(tmp_path: Path) -> AsyncIterator[Callable[..., DaemonProcess]]:
+    """Build daemon subprocesses on pty pairs; all are killed and closed at the end."""
+    made: list[DaemonProcess] = []
+
+    def factory(config: dict[str, Any] | None = None, name: str = "d") -> DaemonProcess:
+        directory = tmp_path / f"{name}{len(made)}"
+        directory.mkdir()
+        daemon = DaemonProcess(directory, config)
+        made.append(daemon)
+        return daemon
+
+    yield factory
+    for daemon in made:
+        await daemon.close()

@@ -1,0 +1,96 @@
+"""The serial link over a real pty: reads, writes, loss, reopen, backoff."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+from pathlib import Path
+
+import pytest
+
+from cc_daemon.link import SerialLink
+from cc_daemon.sim.pty import PtyPair
+
+
+def test_backoff_grows_to_the_cap_with_bounded_jitter() -> None:
+    low = SerialLink("x", on_data=lambda _: None, jitter=lambda: 0.0)
+    high = SerialLink("x", on_data=lambda _: None, jitter=lambda: 1.0)
+    ceilings = [high.backoff_delay(n) for n in range(1, 10)]
+    assert ceilings == pytest.approx([0.2, 0.4, 0.8, 1.6, 3.2, 5.0, 5.0, 5.0, 5.0])
+    assert [low.backoff_delay(n) for n in (1, 9)] == pytest.approx([0.15, 3.75])
+
+
+async def _wait_for(predicate: object, timeout: float = 5.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not predicate():  # type: ignore[operator]
+        if asyncio.get_running_loop().time() > deadline:
+            raise AssertionError("condition not met in time")
+        await asyncio.sleep(0.01)
+
+
+async def test_reads_writes_survives_an_unplug_and_reopens(tmp_path: Path) -> None:
+    pty = PtyPair(tmp_path / "tty")
+    received = bytearray()
+    states: list[tuple[bool, str]] = []
+    link = SerialLink(
+        str(pty.path),
+        on_data=received.extend,
+        on_state=lambda up, why: states.append((up, why)),
+        reconnect_initial_s=0.05,
+        reconnect_max_s=0.2,
+    )
+    task = asyncio.create_task(link.run())
+    try:
+        await _wait_for(lambda: link.up)
+        assert link.write(b"RO\x00H\x00\xe9")
+        await asyncio.sleep(0.1)
+        assert os.read(pty.master_fd, 64) == b"RO\x00H\x00\xe9"
+        os.write(pty.master_fd, b"PS\x00H\x00\xeb")
+        await _wait_for(lambda: bytes(received) == b"PS\x00H\x00\xeb")
+
+        pty.unplug()
+        await _wait_for(lambda: not link.up)
+        assert link.write(b"RO\x00H\x00\xe9") is False  # nothing is queued while down
+        assert link.frames_dropped == 1
+        await asyncio.sleep(0.5)  # several failed reopen attempts: the path is gone
+        pty.replug()
+        await _wait_for(lambda: link.up)
+        os.write(pty.master_fd, b"PS\x00I\x00\xec")
+        await _wait_for(lambda: bytes(received).endswith(b"PS\x00I\x00\xec"))
+        # The frame written while down never arrives after the reopen.
+        await asyncio.sleep(0.05)
+        with contextlib.suppress(BlockingIOError):
+            assert b"RO" not in os.read(pty.master_fd, 64)
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        pty.close()
+    assert [up for up, _ in states] == [True, False, True]
+    assert link.opens == 2
+
+
+async def test_a_handler_exception_does_not_stop_reading(tmp_path: Path) -> None:
+    pty = PtyPair(tmp_path / "tty")
+    calls: list[bytes] = []
+
+    def handler(data: bytes) -> None:
+        calls.append(data)
+        if len(calls) == 1:
+            raise RuntimeError("handler bug")
+
+    link = SerialLink(str(pty.path), on_data=handler)
+    task = asyncio.create_task(link.run())
+    try:
+        await _wait_for(lambda: link.up)
+        os.write(pty.master_fd, b"first")
+        await _wait_for(lambda: len(calls) == 1)
+        os.write(pty.master_fd, b"second")
+        await _wait_for(lambda: len(calls) == 2)
+        assert link.up
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        pty.close()
