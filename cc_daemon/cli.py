@@ -50,6 +50,10 @@ def _add_decode(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 
 def _run_decode(args: argparse.Namespace) -> int:
+    from cc_daemon.logsetup import configure_logging
+
+    # Decoded lines own stdout (it may be piped into jq); diagnostics go to stderr.
+    configure_logging("auto", "warning", sys.stderr)
     try:
         if args.port:
             from cc_daemon.live_decode import decode_port

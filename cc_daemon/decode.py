@@ -16,7 +16,6 @@ from typing import IO, Any
 
 from cc_daemon.protocol import CorruptFrame, Message, Parser, Sender, as_dict
 
-_HEX_TOKEN = re.compile(r"(?:0[xX])?([0-9A-Fa-f]{2})")
 _SEPARATORS = re.compile(r"[\s,:;]+")
 
 
@@ -25,13 +24,17 @@ class HexInputError(ValueError):
 
 
 def parse_hex(text: str) -> bytes:
-    """`"50 53 00 48 00 EB"`, `"505300480 0EB"`, `"0x50,0x53"` -> bytes."""
+    """`"50 53 00 48 00 EB"`, `"50530048 00EB"`, `"0x50,0x53"` -> bytes.
+
+    Tokens are separated by blanks, commas, colons or semicolons; each is an
+    even number of hex digits, optionally after `0x`.
+    """
     out = bytearray()
     for token in _SEPARATORS.split(text.strip()):
         if not token:
             continue
         body = token[2:] if token[:2] in ("0x", "0X") else token
-        if len(body) % 2 or not all(c in "0123456789abcdefABCDEF" for c in body):
+        if not body or len(body) % 2 or not all(c in "0123456789abcdefABCDEF" for c in body):
             raise HexInputError(f"not hex bytes: {token!r}")
         out += bytes.fromhex(body)
     return bytes(out)
@@ -40,7 +43,9 @@ def parse_hex(text: str) -> bytes:
 def format_event(event: Message | CorruptFrame, *, as_json: bool) -> str:
     if isinstance(event, CorruptFrame):
         if as_json:
-            return json.dumps({"error": str(event.kind), "bytes": event.hex(), "detail": event.detail})
+            return json.dumps(
+                {"error": str(event.kind), "bytes": event.hex(), "detail": event.detail}
+            )
         return f"ERROR {event.kind}: {event.hex()} ({event.detail})"
     fields: dict[str, Any] = as_dict(event)
     if as_json:
@@ -59,9 +64,7 @@ def decode_chunks(
     parser = Parser(Sender.BOTH, accept_g_alias=accept_g_alias)
     for chunk in chunks:
         yield from parser.events(chunk)
-    leftover = parser.close()
-    if leftover is not None:
-        yield leftover
+    yield from parser.close()
 
 
 def read_stdin_chunks(stream: IO[bytes], *, hex_text: bool) -> Iterator[bytes]:
@@ -74,9 +77,13 @@ def read_stdin_chunks(stream: IO[bytes], *, hex_text: bool) -> Iterator[bytes]:
 
 
 def print_events(
-    events: Iterable[Message | CorruptFrame], *, as_json: bool, out: IO[str] = sys.stdout
+    events: Iterable[Message | CorruptFrame], *, as_json: bool, out: IO[str] | None = None
 ) -> int:
-    """Print each event; return 1 if any was an error, else 0."""
+    """Print each event to `out` (the current `sys.stdout` by default); return 1
+    if any was an error, else 0."""
+    # Looked up at call time: a default of `sys.stdout` would pin the stream
+    # that existed at import, bypassing any later redirection.
+    out = sys.stdout if out is None else out
     status = 0
     for event in events:
         if isinstance(event, CorruptFrame):

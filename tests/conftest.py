@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from cc_daemon.logsetup import reset_logging
 from tests.daemonkit import DaemonProcess
+
+
+@pytest.fixture(autouse=True)
+def _fresh_logging() -> Iterator[None]:
+    """Commands run in-process configure structlog globally; undo it after each test."""
+    yield
+    reset_logging()
 
 
 @pytest.fixture

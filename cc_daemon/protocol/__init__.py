@@ -5,7 +5,7 @@ the streaming `Parser`. Nothing in this package does I/O, sleeps or reads a
 clock.
 """
 
-from cc_daemon.protocol.frames import FrameType, Sync, checksum, encode
+from cc_daemon.protocol.frames import AutopilotType, CcType, Sync, checksum, encode
 from cc_daemon.protocol.messages import (
     MESSAGE_TYPES,
     Ack,
@@ -26,12 +26,13 @@ __all__ = [
     "MESSAGE_TYPES",
     "Ack",
     "AutopilotMessage",
+    "AutopilotType",
     "CcMessage",
+    "CcType",
     "CorruptFrame",
     "DepthReport",
     "ErrorKind",
     "Finished",
-    "FrameType",
     "Message",
     "Parser",
     "ParserStats",

@@ -44,17 +44,22 @@ class Sync(IntEnum):
     CC = 0x52  # "R", Raspberry Pi
 
 
-class FrameType(IntEnum):
-    """Second byte of a frame. With the sync byte it fixes the frame's length."""
+class AutopilotType(IntEnum):
+    """Second byte of a `P` frame. With the sync byte it fixes the frame's length."""
 
     TELEMETRY = 0x54  # "T"
     START_MEASURING = 0x4D  # "M"
     START_MEASURING_G = 0x47  # "G": one firmware revision's start-measuring byte
     PROBE_REQUEST = 0x53  # "S"
+
+
+class CcType(IntEnum):
+    """Second byte of an `R` frame. (Two enums: `M` means different things per side.)"""
+
     ACK = 0x4F  # "O"
-    DEPTH = 0x4D  # "M" (from the CC)
+    DEPTH = 0x4D  # "M"
     FINISHED = 0x46  # "F"
-    PROBE_POSITION = 0x50  # "P" (from the CC)
+    PROBE_POSITION = 0x50  # "P"
 
 
 MIN_FRAME_LENGTH = 6
@@ -126,23 +131,23 @@ def _encode_depth(type_byte: int, timestamp_s: int, depth_mm: int) -> bytes:
     )
 
 
-def encode(message: Message, *, start_type: int = FrameType.START_MEASURING) -> bytes:
+def encode(message: Message, *, start_type: int = AutopilotType.START_MEASURING) -> bytes:
     """The frame for `message`. `start_type` lets a test or simulator send `G`."""
     match message:
         case Telemetry():
-            return _encode_position(message, FrameType.TELEMETRY)
+            return _encode_position(message, AutopilotType.TELEMETRY)
         case StartMeasuring():
             return _encode_position(message, start_type)
         case ProbePositionRequest():
-            return _encode_timestamp_only(Sync.AUTOPILOT, FrameType.PROBE_REQUEST, message[0])
+            return _encode_timestamp_only(Sync.AUTOPILOT, AutopilotType.PROBE_REQUEST, message[0])
         case Ack():
-            return _encode_timestamp_only(Sync.CC, FrameType.ACK, message[0])
+            return _encode_timestamp_only(Sync.CC, CcType.ACK, message[0])
         case DepthReport():
-            return _encode_depth(FrameType.DEPTH, message[0], message[1])
+            return _encode_depth(CcType.DEPTH, message[0], message[1])
         case Finished():
-            return _encode_depth(FrameType.FINISHED, message[0], message[1])
+            return _encode_depth(CcType.FINISHED, message[0], message[1])
         case ProbePosition():
-            return _encode_depth(FrameType.PROBE_POSITION, message[0], message[1])
+            return _encode_depth(CcType.PROBE_POSITION, message[0], message[1])
     raise TypeError(f"not a protocol message: {message!r}")
 
 
@@ -222,28 +227,28 @@ def _key(sync: int, type_byte: int) -> int:
 
 
 AUTOPILOT_LAYOUTS: dict[int, Layout] = {
-    _key(Sync.AUTOPILOT, FrameType.TELEMETRY): Layout(
+    _key(Sync.AUTOPILOT, AutopilotType.TELEMETRY): Layout(
         "P-T", POSITION_LENGTH, _position_decoder(Telemetry)
     ),
-    _key(Sync.AUTOPILOT, FrameType.START_MEASURING): Layout(
+    _key(Sync.AUTOPILOT, AutopilotType.START_MEASURING): Layout(
         "P-M", POSITION_LENGTH, _position_decoder(StartMeasuring)
     ),
-    _key(Sync.AUTOPILOT, FrameType.PROBE_REQUEST): Layout(
+    _key(Sync.AUTOPILOT, AutopilotType.PROBE_REQUEST): Layout(
         "P-S", TIMESTAMP_ONLY_LENGTH, _timestamp_decoder(ProbePositionRequest)
     ),
 }
 
 G_ALIAS_LAYOUT: dict[int, Layout] = {
-    _key(Sync.AUTOPILOT, FrameType.START_MEASURING_G): Layout(
+    _key(Sync.AUTOPILOT, AutopilotType.START_MEASURING_G): Layout(
         "P-G", POSITION_LENGTH, _position_decoder(StartMeasuring)
     ),
 }
 
 CC_LAYOUTS: dict[int, Layout] = {
-    _key(Sync.CC, FrameType.ACK): Layout("R-O", TIMESTAMP_ONLY_LENGTH, _timestamp_decoder(Ack)),
-    _key(Sync.CC, FrameType.DEPTH): Layout("R-M", WITH_DEPTH_LENGTH, _depth_decoder(DepthReport)),
-    _key(Sync.CC, FrameType.FINISHED): Layout("R-F", WITH_DEPTH_LENGTH, _depth_decoder(Finished)),
-    _key(Sync.CC, FrameType.PROBE_POSITION): Layout(
+    _key(Sync.CC, CcType.ACK): Layout("R-O", TIMESTAMP_ONLY_LENGTH, _timestamp_decoder(Ack)),
+    _key(Sync.CC, CcType.DEPTH): Layout("R-M", WITH_DEPTH_LENGTH, _depth_decoder(DepthReport)),
+    _key(Sync.CC, CcType.FINISHED): Layout("R-F", WITH_DEPTH_LENGTH, _depth_decoder(Finished)),
+    _key(Sync.CC, CcType.PROBE_POSITION): Layout(
         "R-P", WITH_DEPTH_LENGTH, _depth_decoder(ProbePosition)
     ),
 }

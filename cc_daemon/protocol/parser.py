@@ -9,7 +9,9 @@ resynchronises at the next sync byte *after the failed frame's first byte*, so
 a valid frame that starts inside a corrupt one is still found.
 
 The buffer is bounded: between calls it holds less than one maximal frame
-(25 bytes), whatever was fed.
+(25 bytes), whatever was fed. At the end of the stream `close` reports a frame
+cut short as truncated and still decodes any complete frame that starts
+inside it.
 
 Timestamps are information only: nothing here rejects, reorders or drops a
 frame because of its timestamp.
@@ -155,19 +157,37 @@ class Parser:
         self._parse(out, report)  # type: ignore[arg-type]
         return out
 
-    def close(self) -> CorruptFrame | None:
-        """End of stream: report a partial frame left in the buffer as truncated."""
-        rest = bytes(self._buf)
-        self._buf.clear()
+    def close(self) -> list[Message | CorruptFrame]:
+        """End of stream: what is left in the buffer, as events in stream order.
+
+        The frame the buffer starts with can no longer be completed, so it is
+        reported as truncated (with every byte left) and, as after any failed
+        frame, parsing resumes from its second byte: a complete frame that
+        starts inside it is still decoded. The parser is then empty and can
+        take a new stream.
+        """
+        out: list[Message | CorruptFrame] = []
+
+        def report(error: CorruptFrame) -> None:
+            self._report(error)
+            out.append(error)
+
+        buf = self._buf
+        # feed's fast path may have left a lone non-sync byte unparsed: drop it first.
+        self._parse(out, report)  # type: ignore[arg-type]
+        while buf:
+            report(
+                CorruptFrame(
+                    ErrorKind.TRUNCATED,
+                    bytes(buf),
+                    f"stream ended {len(buf)} bytes into a frame",
+                )
+            )
+            del buf[:1]
+            self.stats.bytes_discarded += 1
+            self._parse(out, report)  # type: ignore[arg-type]
         self._need = 2
-        if not rest:
-            return None
-        self.stats.bytes_discarded += len(rest)
-        error = CorruptFrame(
-            ErrorKind.TRUNCATED, rest, f"stream ended {len(rest)} bytes into a frame"
-        )
-        self._report(error)
-        return error
+        return out
 
     # ------------------------------------------------------------ internals
 
