@@ -17,11 +17,11 @@ from cc_daemon.errors import FieldError, ProtocolError
 from cc_daemon.protocol import (
     MESSAGE_TYPES,
     Ack,
+    AutopilotType,
     CorruptFrame,
     DepthReport,
     ErrorKind,
     Finished,
-    AutopilotType,
     Message,
     Parser,
     ProbePosition,

@@ -11,11 +11,11 @@ import pytest
 
 from cc_daemon.protocol import (
     Ack,
+    AutopilotType,
     CorruptFrame,
     DepthReport,
     ErrorKind,
     Finished,
-    AutopilotType,
     Message,
     Parser,
     ProbePosition,
