@@ -322,7 +322,8 @@ class Daemon:
 
     def _on_link_state(self, up: bool, reason: str) -> None:
         if up:
-            self._journal_event("port_opened", port=self.link.port)
+            kind = "port_regained" if self.port_losses else "port_opened"
+            self._journal_event(kind, port=self.link.port)
             if not self.ready.is_set():
                 self.ready.set()
                 self._notifier.notify("READY=1", f"STATUS=answering on {self.link.port}")
