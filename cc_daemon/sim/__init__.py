@@ -1,0 +1,13 @@
+"""The simulated autopilot behind `cc-daemon --simulate` and `simulate-autopilot`.
+
+- `pty`: a pty pair standing in for the serial cable (unplug / replug).
+- `port`: frame-level asyncio I/O over the pty master or a serial port.
+- `mission`: stations, transits and the water-depth field (pure).
+- `autopilot`: the firmware's behaviour as a sans-IO state machine (pure).
+- `console`: the live view and the end-of-run summary.
+- `runner`: wires them to the daemon, in-process, and the command-line options.
+
+The simulator speaks to the daemon only through the wire protocol (the codec
+in `cc_daemon.protocol`); it never reaches into the daemon's internals except
+to read its status snapshot for the summary.
+"""

@@ -1,0 +1,546 @@
+"""The simulated Paparazzi autopilot: the deployed firmware's behaviour, sans-IO.
+
+This module owns what the autopilot side of the link does and what it checks,
+written from `shared/PROTOCOL.md` alone. It is a state machine driven by the
+caller: `poll(now)` returns the frames due at `now` (one per frame period),
+`on_frame(now, message)` and `on_corrupt(now, error)` take what arrived, and
+`finish(now)` closes the books. `now` is seconds since the mission started,
+from whatever clock the caller likes: tests pass plain numbers.
+
+Behaviour, as the firmware does it:
+- one frame per frame period (a second on the real boat);
+- cruising: `T` with the position along a straight transit, the altitude and
+  the sonar reading;
+- at a station: `M` every frame until `R-O` arrives; then, while the probe is
+  out, it holds position and sends `T`, with `S` every `query_every`-th frame
+  (or keeps resending `M` in place of `T`, as a flight plan that keeps the
+  station selected does, with `resend_m_during_cast`);
+- it leaves the station only when `R-F` arrives.
+
+It records a `Violation` for: a corrupt frame, `M` or `S` not answered within
+`answer_timeout_s`, depth reports stopping for more than `report_gap_s`
+during a cast, `R-F` with a non-zero depth, a depth below the bottom or beyond
+the line, no `R-F` within `finish_timeout_s` of arriving, a frame that makes
+no sense in the current state, and (with `check_plan`) a cast at the shoal or
+a refusal at a deep station. Violations that injected link noise or a pulled
+cable can explain are recorded as excused, with the reason.
+
+It never does I/O, never sleeps, never reads a clock, and never looks inside
+the daemon.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from cc_daemon.protocol import (
+    Ack,
+    AutopilotMessage,
+    CorruptFrame,
+    DepthReport,
+    Finished,
+    Message,
+    ProbePosition,
+    ProbePositionRequest,
+    StartMeasuring,
+    Telemetry,
+)
+from cc_daemon.sim.mission import ORIGIN_ALT_M, Mission, Point, Station
+
+
+class Phase(StrEnum):
+    CRUISING = "cruising"  # under way to the next station
+    REQUESTING = "requesting"  # at a station, sending M until R-O
+    CASTING = "casting"  # R-O received, holding position until R-F
+    DONE = "done"  # every station visited (or the run was ended)
+
+
+class ViolationKind(StrEnum):
+    CORRUPT_FRAME = "corrupt frame"
+    NO_ACK = "M not answered"
+    NO_PROBE_ANSWER = "S not answered"
+    REPORT_GAP = "depth reports stopped"
+    FINISHED_NOT_HOME = "R-F with the probe down"
+    DEPTH_OUT_OF_RANGE = "depth out of range"
+    NO_FINISH = "no R-F"
+    UNEXPECTED_FRAME = "unexpected frame"
+    UNEXPECTED_SKIP = "deep station not cast"
+    UNEXPECTED_CAST = "cast at a too-shallow station"
+    DUPLICATE_CAST = "more than one cast at a station"  # found in the daemon's journal
+
+
+# What a lost or mangled frame can explain, by where the noise was.
+_EXPLAINED_BY_INBOUND_LOSS = frozenset(
+    {
+        ViolationKind.CORRUPT_FRAME,
+        ViolationKind.NO_ACK,
+        ViolationKind.NO_PROBE_ANSWER,
+        ViolationKind.REPORT_GAP,
+    }
+)
+_EXPLAINED_BY_OUTBOUND_LOSS = frozenset({ViolationKind.NO_ACK, ViolationKind.NO_PROBE_ANSWER})
+
+
+@dataclass(frozen=True, slots=True)
+class Violation:
+    time: float
+    kind: ViolationKind
+    detail: str
+    station: int | None  # 1-based station number, None between stations
+    excused_by: str | None = None  # injected noise or an unplugged cable explains it
+
+    @property
+    def excused(self) -> bool:
+        return self.excused_by is not None
+
+    def describe(self) -> str:
+        where = f"S{self.station} " if self.station is not None else ""
+        note = f" (excused: {self.excused_by})" if self.excused_by else ""
+        return f"{self.time:7.1f} s  {where}{self.kind}: {self.detail}{note}"
+
+
+@dataclass(frozen=True, slots=True)
+class AutopilotConfig:
+    frame_period_s: float = 1.0
+    boat_speed_m_s: float = 1.5
+    query_every: int = 3  # while the probe is out, every n-th frame is S
+    resend_m_during_cast: bool = False
+    report_gap_s: float = 3.0
+    answer_timeout_s: float = 1.0
+    finish_timeout_s: float = 900.0  # from arriving at a station
+    max_line_m: float = 20.0
+    depth_tolerance_m: float = 0.05
+    check_plan: bool = True  # a shoal station must be refused, every other one cast
+    noise_inbound: bool = False  # bits are flipped on frames from the daemon
+    noise_outbound: bool = False  # bits are flipped on our frames
+    outage_grace_s: float = 6.0  # after a replug: the daemon's reopen backoff tops out at 5 s
+    station_grace_s: float = 3.0  # late answers to our last M after leaving are not news
+
+    def __post_init__(self) -> None:
+        if self.frame_period_s <= 0:
+            raise ValueError(f"frame_period_s={self.frame_period_s} is invalid: allowed > 0")
+        if self.boat_speed_m_s <= 0:
+            raise ValueError(f"boat_speed_m_s={self.boat_speed_m_s} is invalid: allowed > 0")
+        if self.query_every < 2:
+            raise ValueError(f"query_every={self.query_every} is invalid: allowed >= 2")
+
+
+@dataclass(slots=True)
+class _Outage:
+    down: float
+    up: float | None = None  # None while the cable is out
+
+
+@dataclass(slots=True)
+class StationLog:
+    """What happened at one station, as the autopilot saw it."""
+
+    station: Station
+    arrived_at: float | None = None
+    acked_at: float | None = None
+    finished_at: float | None = None
+    finish_depth_mm: int | None = None
+    reports: int = 0
+    max_depth_m: float = 0.0
+    m_sent: int = 0
+    s_sent: int = 0
+    violations: list[Violation] = field(default_factory=list)
+
+    @property
+    def cast_duration_s(self) -> float | None:
+        """From R-O to R-F."""
+        if self.acked_at is None or self.finished_at is None:
+            return None
+        return self.finished_at - self.acked_at
+
+    @property
+    def problems(self) -> list[Violation]:
+        return [v for v in self.violations if not v.excused]
+
+    @property
+    def verdict(self) -> str:
+        if self.arrived_at is None:
+            return "not reached"
+        if self.finished_at is None:
+            return "no R-F"
+        if self.problems:
+            return "FAILED: " + ", ".join(sorted({str(v.kind) for v in self.problems}))
+        if self.reports == 0:
+            return "skipped: too shallow" if self.station.too_shallow else "skipped"
+        return "measured"
+
+
+class Autopilot:
+    """See the module docstring. `now` must never go backwards."""
+
+    def __init__(
+        self, mission: Mission, config: AutopilotConfig | None = None, *, seed: int | None = None
+    ) -> None:
+        self.mission = mission
+        self.config = config or AutopilotConfig()
+        self._rng = random.Random(mission.seed if seed is None else seed)
+        self.phase = Phase.CRUISING
+        self.index = 0  # the station we are going to, or at
+        self.logs = [StationLog(s) for s in mission.stations]
+        self.violations: list[Violation] = []
+        self.probe_depth_m = 0.0  # the last depth the daemon told us
+        self._leg_started_at: float | None = None
+        self._next_frame_at: float | None = None
+        self._frames_at_station = 0
+        self._pending_m_since: float | None = None
+        self._pending_s_since: float | None = None
+        self._last_report_at: float | None = None
+        self._gap_flagged = False
+        self._retrying = False
+        self._left_station_at: float | None = None
+        self._position = mission.start
+        self._outages: list[_Outage] = []
+        self.finished = False
+
+    # ------------------------------------------------------------ queries
+
+    @property
+    def station(self) -> Station | None:
+        """The station we are going to or at; None when done."""
+        if self.phase is Phase.DONE:
+            return None
+        return self.mission.stations[self.index]
+
+    @property
+    def log(self) -> StationLog | None:
+        return None if self.phase is Phase.DONE else self.logs[self.index]
+
+    @property
+    def next_deadline(self) -> float:
+        """When `poll` next has something to do (a frame is due)."""
+        return 0.0 if self._next_frame_at is None else self._next_frame_at
+
+    def position(self, now: float) -> Point:
+        self._advance(now)
+        return self._position
+
+    @property
+    def problems(self) -> list[Violation]:
+        return [v for v in self.violations if not v.excused]
+
+    @property
+    def survey_complete(self) -> bool:
+        return all(log.finished_at is not None for log in self.logs)
+
+    # ------------------------------------------------------------ the link going away
+
+    def link_down(self, now: float) -> None:
+        """The cable is out from `now`: silence until `link_up` (and a grace after) is excused."""
+        self._outages.append(_Outage(now))
+
+    def link_up(self, now: float) -> None:
+        if self._outages and self._outages[-1].up is None:
+            self._outages[-1].up = now
+
+    # ------------------------------------------------------------ driving
+
+    def poll(self, now: float) -> list[AutopilotMessage]:
+        """Check timers and return the frames due at `now` (at most one)."""
+        if self._next_frame_at is None:
+            self._next_frame_at = now
+            self._leg_started_at = now
+        self._advance(now)
+        self._check_timers(now)
+        if self.phase is Phase.DONE or now < self._next_frame_at:
+            return []
+        period = self.config.frame_period_s
+        self._next_frame_at += period
+        if self._next_frame_at <= now:  # we were not polled for a while: no burst of catch-up
+            self._next_frame_at = now + period
+        return [self._frame(now)]
+
+    def on_frame(self, now: float, message: Message) -> None:
+        """A frame from the daemon arrived at `now`."""
+        if self.finished:
+            return  # the books are closed: what comes now is a consequence, not news
+        self._advance(now)
+        if isinstance(message, Ack):
+            self._on_ack(now)
+        elif isinstance(message, DepthReport):
+            self._on_depth(now, message)
+        elif isinstance(message, ProbePosition):
+            self._on_probe_position(now, message)
+        elif isinstance(message, Finished):
+            self._on_finished(now, message)
+        else:
+            self._violation(
+                now, ViolationKind.UNEXPECTED_FRAME, f"{message.frame} is not a CC frame"
+            )
+
+    def on_corrupt(self, now: float, error: CorruptFrame) -> None:
+        if self.finished:
+            return
+        self._violation(
+            now, ViolationKind.CORRUPT_FRAME, f"{error.kind}: {error.hex()} ({error.detail})"
+        )
+
+    def finish(self, now: float, *, interrupted: bool = False) -> None:
+        """The run is over: a station still waiting for R-F says so."""
+        if self.finished:
+            return
+        self.finished = True
+        log = self.log
+        if log is not None and log.arrived_at is not None and log.finished_at is None:
+            self._violation(
+                now,
+                ViolationKind.NO_FINISH,
+                f"the run ended {now - log.arrived_at:.1f} s after arriving, without R-F",
+                excused_by="stopped by the operator" if interrupted else None,
+            )
+        self.phase = Phase.DONE
+
+    # ------------------------------------------------------------ motion
+
+    def _advance(self, now: float) -> None:
+        if self.phase is not Phase.CRUISING or self._leg_started_at is None:
+            return
+        travelled = (now - self._leg_started_at) * self.config.boat_speed_m_s
+        begin, end = self.mission.leg(self.index)
+        length = begin.distance_to(end)
+        if travelled < length:
+            self._position = begin.towards(end, travelled)
+            return
+        self._position = end
+        self.phase = Phase.REQUESTING
+        self._frames_at_station = 0
+        self.logs[self.index].arrived_at = self._leg_started_at + length / (
+            self.config.boat_speed_m_s
+        )
+
+    def _leave_station(self, now: float) -> None:
+        self._left_station_at = now
+        self._pending_m_since = self._pending_s_since = None
+        self._last_report_at = None
+        self._gap_flagged = self._retrying = False
+        self.index += 1
+        if self.index >= len(self.mission.stations):
+            self.index = len(self.mission.stations) - 1
+            self.phase = Phase.DONE
+            return
+        self.phase = Phase.CRUISING
+        self._leg_started_at = now
+
+    # ------------------------------------------------------------ frames out
+
+    def _frame(self, now: float) -> AutopilotMessage:
+        stamp = int(now) & 0xFFFF  # whole seconds since boot, as the firmware counts
+        log = self.logs[self.index]
+        if self.phase is Phase.REQUESTING:
+            return self._start_measuring(now, stamp, log)
+        if self.phase is Phase.CASTING:
+            self._frames_at_station += 1
+            if self._frames_at_station % self.config.query_every == 0:
+                log.s_sent += 1
+                if self._pending_s_since is None:
+                    self._pending_s_since = now
+                request: ProbePositionRequest = ProbePositionRequest(stamp)
+                return request
+            if self.config.resend_m_during_cast or self._retrying:
+                return self._start_measuring(now, stamp, log)
+        telemetry: Telemetry = Telemetry(stamp, *self._fix(moving=self.phase is Phase.CRUISING))
+        return telemetry
+
+    def _start_measuring(self, now: float, stamp: int, log: StationLog) -> StartMeasuring:
+        log.m_sent += 1
+        if self._pending_m_since is None:
+            self._pending_m_since = now
+        message: StartMeasuring = StartMeasuring(stamp, *self._fix(moving=False))
+        return message
+
+    def _fix(self, *, moving: bool) -> tuple[int, int, int, int, int]:
+        lon, lat = self._position.e7
+        sonar = self.mission.sonar(self._position, moving=moving, rng=self._rng)
+        alt_mm = round((ORIGIN_ALT_M + self._rng.uniform(-0.03, 0.03)) * 1000)  # a ripple
+        return lon, lat, alt_mm, sonar.distance_mm, sonar.confidence_pct
+
+    # ------------------------------------------------------------ frames in
+
+    def _at_station(self) -> bool:
+        return self.phase in (Phase.REQUESTING, Phase.CASTING)
+
+    def _just_left(self, now: float) -> bool:
+        left = self._left_station_at
+        return left is not None and now - left <= self.config.station_grace_s
+
+    def _on_ack(self, now: float) -> None:
+        self._pending_m_since = None
+        if self.phase is Phase.REQUESTING:
+            self._start_cast(now)
+        elif self.phase is Phase.CASTING:
+            self._retrying = False  # the cast is still running: reports will follow
+        elif not self._just_left(now):
+            self._violation(now, ViolationKind.UNEXPECTED_FRAME, "R-O with no M outstanding")
+
+    def _start_cast(self, now: float) -> None:
+        self.phase = Phase.CASTING
+        self.logs[self.index].acked_at = now
+        self._last_report_at = now
+        self._frames_at_station = 0
+
+    def _on_depth(self, now: float, message: DepthReport) -> None:
+        if self.phase is Phase.REQUESTING:
+            self._start_cast(now)  # R-O was lost on the way; the cast is evidently running
+        if self.phase is not Phase.CASTING:
+            self._violation(
+                now,
+                ViolationKind.UNEXPECTED_FRAME,
+                f"R-M depth {message.depth_m:.3f} m with no cast running",
+            )
+            return
+        self._check_depth(now, "R-M", message.depth_mm)
+        log = self.logs[self.index]
+        log.reports += 1
+        log.max_depth_m = max(log.max_depth_m, message.depth_m)
+        self.probe_depth_m = message.depth_m
+        self._last_report_at = now
+        self._gap_flagged = self._retrying = False
+
+    def _on_probe_position(self, now: float, message: ProbePosition) -> None:
+        if self._pending_s_since is None and not self._just_left(now):
+            self._violation(now, ViolationKind.UNEXPECTED_FRAME, "R-P with no S outstanding")
+        self._pending_s_since = None
+        self._check_depth(now, "R-P", message.depth_mm)
+        self.probe_depth_m = message.depth_m
+
+    def _on_finished(self, now: float, message: Finished) -> None:
+        if message.depth_mm != 0:
+            self._violation(
+                now,
+                ViolationKind.FINISHED_NOT_HOME,
+                f"R-F says the probe is at {message.depth_m:.3f} m: the boat would drag it",
+            )
+        if not self._at_station():
+            if not self._just_left(now):
+                self._violation(now, ViolationKind.UNEXPECTED_FRAME, "R-F with no cast running")
+            return
+        self.probe_depth_m = message.depth_m
+        log = self.logs[self.index]
+        log.finished_at = now
+        log.finish_depth_mm = message.depth_mm
+        if self.config.check_plan:
+            if log.reports == 0 and not log.station.too_shallow:
+                self._violation(
+                    now,
+                    ViolationKind.UNEXPECTED_SKIP,
+                    f"R-F without a cast in {log.station.water_depth_m:.2f} m of water",
+                )
+            elif log.reports > 0 and log.station.too_shallow:
+                self._violation(
+                    now,
+                    ViolationKind.UNEXPECTED_CAST,
+                    f"probe lowered in {log.station.water_depth_m:.2f} m of water",
+                )
+        self._leave_station(now)
+
+    def _check_depth(self, now: float, frame: str, depth_mm: int) -> None:
+        depth = depth_mm / 1000.0
+        tolerance = self.config.depth_tolerance_m
+        if depth > self.config.max_line_m + tolerance:
+            self._violation(
+                now,
+                ViolationKind.DEPTH_OUT_OF_RANGE,
+                f"{frame} depth {depth:.3f} m is beyond {self.config.max_line_m} m of line",
+            )
+        elif self._at_station():
+            bottom = self.logs[self.index].station.water_depth_m
+            if depth > bottom + tolerance:
+                self._violation(
+                    now,
+                    ViolationKind.DEPTH_OUT_OF_RANGE,
+                    f"{frame} depth {depth:.3f} m is below the bottom at {bottom:.3f} m",
+                )
+
+    # ------------------------------------------------------------ timers
+
+    def _check_timers(self, now: float) -> None:
+        config = self.config
+        since = self._pending_m_since
+        if since is not None and now - since > config.answer_timeout_s:
+            self._pending_m_since = None
+            self._violation(
+                now,
+                ViolationKind.NO_ACK,
+                f"no R-O or R-F within {config.answer_timeout_s:g} s of M",
+                since=since,
+            )
+        since = self._pending_s_since
+        if since is not None and now - since > config.answer_timeout_s:
+            self._pending_s_since = None
+            self._violation(
+                now,
+                ViolationKind.NO_PROBE_ANSWER,
+                f"no R-P within {config.answer_timeout_s:g} s of S",
+                since=since,
+            )
+        last = self._last_report_at
+        if (
+            self.phase is Phase.CASTING
+            and last is not None
+            and not self._gap_flagged
+            and now - last > config.report_gap_s
+        ):
+            self._gap_flagged = True
+            # The station is still selected: resend M until the daemon
+            # answers, as the firmware does. A lost R-F is repeated then.
+            self._retrying = True
+            self._violation(
+                now,
+                ViolationKind.REPORT_GAP,
+                f"no R-M for more than {config.report_gap_s:g} s during the cast",
+                since=last,
+            )
+        log = self.log
+        if (
+            log is not None
+            and self._at_station()
+            and log.arrived_at is not None
+            and now - log.arrived_at > config.finish_timeout_s
+        ):
+            self._violation(
+                now,
+                ViolationKind.NO_FINISH,
+                f"no R-F {config.finish_timeout_s:g} s after arriving; giving up on the station "
+                f"with the probe last reported at {self.probe_depth_m:.2f} m",
+            )
+            self.finished = True
+            self.phase = Phase.DONE  # a boat must not leave with the probe possibly down
+
+    # ------------------------------------------------------------ violations
+
+    def _violation(
+        self,
+        now: float,
+        kind: ViolationKind,
+        detail: str,
+        *,
+        since: float | None = None,
+        excused_by: str | None = None,
+    ) -> None:
+        if excused_by is None:
+            excused_by = self._excuse(kind, now if since is None else since, now)
+        station = self.logs[self.index].station.number if self._at_station() else None
+        violation = Violation(now, kind, detail, station, excused_by)
+        self.violations.append(violation)
+        if station is not None:
+            self.logs[self.index].violations.append(violation)
+
+    def _excuse(self, kind: ViolationKind, since: float, now: float) -> str | None:
+        config = self.config
+        if kind in _EXPLAINED_BY_INBOUND_LOSS:
+            for outage in self._outages:
+                up = outage.up
+                end = float("inf") if up is None else up + config.outage_grace_s
+                if since <= end and now >= outage.down:
+                    return "the cable was unplugged"
+        if config.noise_inbound and kind in _EXPLAINED_BY_INBOUND_LOSS:
+            return "bits flipped on the daemon's frames"
+        if config.noise_outbound and kind in _EXPLAINED_BY_OUTBOUND_LOSS:
+            return "bits flipped on our frames"
+        return None

@@ -1,0 +1,398 @@
+"""What a person sees during and after `cc-daemon --simulate`.
+
+This module owns the presentation: a live rich view when stdout is a terminal
+(mission progress, the current station, the probe depth as a bar against the
+planned depth and the bottom, the last frames each way decoded, recent
+events), plain time-stamped lines otherwise (CI logs, pipes), and the
+end-of-run summary table.
+
+It only renders what it is given (`ViewState`, `Summary`, events and frames
+handed to it); it never talks to the link, the daemon or the clock, and it
+decides nothing about the outcome of the run.
+"""
+
+from __future__ import annotations
+
+import io
+import sys
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TextIO
+
+from rich import box
+from rich.console import Console, Group, RenderableType
+from rich.live import Live
+from rich.panel import Panel
+from rich.table import Table
+from rich.text import Text
+
+from cc_daemon.protocol import CorruptFrame, Message, as_dict
+from cc_daemon.sim.autopilot import Violation
+from cc_daemon.sim.mission import Mission
+
+_RECENT_FRAMES = 4
+_RECENT_EVENTS = 6
+_BAR_WIDTH = 44
+
+
+def describe_frame(message: Message) -> str:
+    """One short line for a frame: `P-T t=12 40.4506308 N -3.7260579 E sonar 4.620 m 97 %`."""
+    fields = as_dict(message)
+    name = fields.pop("frame")
+    stamp = fields.pop("timestamp_s")
+    if "lat_e7" in fields:
+        sonar_m = fields["sonar_distance_mm"] / 1000
+        return (
+            f"{name} t={stamp} {fields['lat_e7'] / 1e7:.7f} {fields['lon_e7'] / 1e7:.7f} "
+            f"alt {fields['alt_mm'] / 1000:.3f} m  sonar {sonar_m:.3f} m "
+            f"{fields['sonar_confidence_pct']} %"
+        )
+    if "depth_mm" in fields:
+        return f"{name} t={stamp} depth {fields['depth_mm'] / 1000:.3f} m"
+    return f"{name} t={stamp}"
+
+
+@dataclass(slots=True)
+class ViewState:
+    """Everything the live view shows, gathered by the runner each refresh."""
+
+    elapsed_s: float = 0.0
+    station_number: int | None = None  # the station the boat is going to or at
+    stations_done: int = 0
+    station_count: int = 0
+    autopilot_phase: str = "starting"
+    water_depth_m: float | None = None  # at the current station, when there
+    probe_depth_m: float = 0.0
+    planned_depth_m: float | None = None
+    daemon_phase: str = "starting"
+    daemon_link_up: bool = False
+    cable_plugged: bool = True
+    frames_out: int = 0
+    frames_in: int = 0
+    corrupt_in: int = 0
+    corrupt_at_daemon: int = 0
+    problems: int = 0
+    excused: int = 0
+    lat_deg: float = 0.0
+    lon_deg: float = 0.0
+    progress: list[tuple[str, str]] = field(default_factory=list)  # (station name, mark)
+
+
+# How a station looks in the progress line: pending, current, measured, skipped, failed.
+MARKS = {"pending": "·", "current": "▸", "measured": "✔", "skipped": "↷", "failed": "✘"}
+_MARK_STYLES = {"▸": "bold yellow", "✔": "green", "↷": "cyan", "✘": "bold red", "·": "dim"}
+
+
+def depth_bar(
+    depth_m: float, planned_m: float | None, bottom_m: float | None, width: int = _BAR_WIDTH
+) -> Text:
+    """The probe as a bar from the surface down to the bottom; `┃` marks the plan."""
+    scale = max(bottom_m or 0.0, planned_m or 0.0, depth_m, 1.0)
+    filled = min(width, round(depth_m / scale * width))
+    mark = None if planned_m is None else min(width - 1, round(planned_m / scale * width))
+    bar = Text()
+    for i in range(width):
+        if i == mark:
+            bar.append("┃", style="bold yellow")
+        elif i < filled:
+            bar.append("█", style="cyan")
+        else:
+            bar.append("·", style="blue")
+    bar.append("▓" if bottom_m is not None else " ", style="rgb(150,110,60)")
+    return bar
+
+
+@dataclass(frozen=True, slots=True)
+class StationRow:
+    number: int
+    lat_deg: float
+    lon_deg: float
+    water_depth_m: float
+    planned_depth_m: float | None
+    reached_depth_m: float | None
+    duration_s: float | None
+    reports: int
+    verdict: str
+    ok: bool
+
+
+@dataclass(slots=True)
+class Summary:
+    """The end-of-run report."""
+
+    seed: int
+    elapsed_s: float
+    stations: list[StationRow]
+    frames_to_daemon: int
+    frames_from_daemon: int
+    corrupt_from_daemon: int  # frames from the daemon our parser rejected
+    corrupt_at_daemon: int | None  # frames from us the daemon's parser rejected
+    bits_flipped_out: int
+    bits_flipped_in: int
+    m_sent: int
+    link_drops: int
+    daemon_port_losses: int | None
+    casts_completed: int | None
+    casts_aborted: int | None
+    casts_skipped: int | None
+    violations: list[Violation]
+    db_path: Path | None
+    log_path: Path | None
+    exit_code: int
+    interrupted: bool = False
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def problems(self) -> list[Violation]:
+        return [v for v in self.violations if not v.excused]
+
+
+def _metres(value: float | None) -> str:
+    return "—" if value is None else f"{value:.2f} m"
+
+
+def summary_table(summary: Summary, *, narrow: bool = False) -> Table:
+    """The per-station table; `narrow` puts latitude and longitude on two lines."""
+    table = Table(
+        title="Survey summary", box=box.SIMPLE_HEAVY, title_justify="left", pad_edge=False
+    )
+    table.add_column("station", no_wrap=True)
+    table.add_column("position", no_wrap=True)
+    for number in ("water", "planned", "reached", "cast", "R-M"):
+        table.add_column(number, justify="right", no_wrap=True)
+    table.add_column("verdict", min_width=12)
+    sep = "\n" if narrow else " "
+    for row in summary.stations:
+        table.add_row(
+            f"S{row.number}",
+            # Five decimals is about a metre: as good as the boat's GPS.
+            f"{row.lat_deg:.5f} N{sep}{abs(row.lon_deg):.5f} {'W' if row.lon_deg < 0 else 'E'}",
+            _metres(row.water_depth_m),
+            _metres(row.planned_depth_m),
+            _metres(row.reached_depth_m),
+            "—" if row.duration_s is None else f"{row.duration_s:.1f} s",
+            str(row.reports),
+            Text(row.verdict, style="green" if row.ok else "bold red"),
+        )
+    return table
+
+
+def summary_lines(summary: Summary) -> list[str]:
+    """The totals and advice under the table, as plain lines."""
+    lines = [
+        f"frames: {summary.frames_to_daemon} to the daemon ({summary.m_sent} M), "
+        f"{summary.frames_from_daemon} from it; run took {summary.elapsed_s:.1f} s",
+    ]
+    corrupt = f"corrupt frames: {summary.corrupt_from_daemon} from the daemon"
+    if summary.corrupt_at_daemon is not None:
+        corrupt += f", {summary.corrupt_at_daemon} rejected by the daemon"
+    if summary.bits_flipped_out or summary.bits_flipped_in:
+        corrupt += (
+            f" (injected: {summary.bits_flipped_out} bits flipped towards the daemon, "
+            f"{summary.bits_flipped_in} towards the autopilot)"
+        )
+    lines.append(corrupt)
+    if summary.link_drops or summary.daemon_port_losses:
+        lines.append(
+            f"link: cable pulled {summary.link_drops} time(s); the daemon lost its port "
+            f"{summary.daemon_port_losses or 0} time(s) and reopened it"
+        )
+    if summary.casts_completed is not None:
+        lines.append(
+            f"daemon: {summary.casts_completed} cast(s) completed, {summary.casts_aborted} "
+            f"aborted, {summary.casts_skipped} skipped"
+        )
+    problems = summary.problems
+    excused = len(summary.violations) - len(problems)
+    lines.append(
+        f"protocol violations: {len(problems)}"
+        + (f" (+{excused} explained by injected faults)" if excused else "")
+    )
+    lines.extend("  " + v.describe() for v in problems)
+    lines.extend(_excused_lines(summary.violations))
+    lines.extend(summary.notes)
+    if summary.db_path is not None:
+        lines.append(f"data stored in {summary.db_path}")
+        lines.append(f"  export it: cc-daemon export --db {summary.db_path} --format csv")
+    if summary.log_path is not None:
+        lines.append(f"daemon log (JSON lines): {summary.log_path}")
+    if summary.interrupted:
+        lines.append("interrupted: the daemon brought the probe home before stopping")
+    verdict = "SURVEY OK" if summary.exit_code == 0 else "SURVEY FAILED"
+    lines.append(f"{verdict} (exit status {summary.exit_code})")
+    return lines
+
+
+def _excused_lines(violations: list[Violation]) -> list[str]:
+    """Excused violations, one line per kind and reason: they are expected, not news."""
+    counts: dict[tuple[str, str], int] = {}
+    for v in violations:
+        if v.excused_by is not None:
+            key = (str(v.kind), v.excused_by)
+            counts[key] = counts.get(key, 0) + 1
+    return [f"  excused: {n} x {kind} ({reason})" for (kind, reason), n in counts.items()]
+
+
+class SimConsole:
+    """Live view on a terminal, plain lines elsewhere; then the summary."""
+
+    def __init__(self, out: TextIO | None = None, *, live: bool | None = None) -> None:
+        self.out = out if out is not None else sys.stdout
+        is_tty = _isatty(self.out)
+        self.live = is_tty if live is None else live
+        self.rich = Console(
+            file=self.out,
+            force_terminal=self.live or None,
+            width=None if is_tty else 110,
+            highlight=False,
+        )
+        self.state = ViewState()
+        self.mission: Mission | None = None
+        self.sent: deque[str] = deque(maxlen=_RECENT_FRAMES)
+        self.received: deque[str] = deque(maxlen=_RECENT_FRAMES)
+        self.events: deque[str] = deque(maxlen=_RECENT_EVENTS)
+        self._live: Live | None = None
+
+    # ------------------------------------------------------------ lifecycle
+
+    def start(self, mission: Mission, headline: str) -> None:
+        self.mission = mission
+        self.state.station_count = len(mission.stations)
+        if self.live:
+            self._live = Live(
+                get_renderable=self.render,
+                console=self.rich,
+                refresh_per_second=8,
+                transient=False,
+            )
+            self._live.start()
+        else:
+            self._line(headline)
+            for station in mission.stations:
+                lat, lon = station.point.lat_lon
+                self._line(
+                    f"  {station.name} at {lat:.6f}, {lon:.6f}: water {station.water_depth_m:.2f} m"
+                    + (" (a shoal: too shallow to cast)" if station.too_shallow else "")
+                )
+
+    def stop(self) -> None:
+        if self._live is not None:
+            self._live.refresh()
+            self._live.stop()
+            self._live = None
+
+    # ------------------------------------------------------------ feed
+
+    def update(self, state: ViewState) -> None:
+        self.state = state
+
+    def event(self, elapsed_s: float, text: str) -> None:
+        line = f"{elapsed_s:7.1f} s  {text}"
+        self.events.append(line)
+        if not self.live:
+            self._line(line)
+
+    def frame_out(self, elapsed_s: float, message: Message) -> None:
+        self.sent.append(f"{elapsed_s:7.1f} s  → {describe_frame(message)}")
+
+    def frame_in(self, elapsed_s: float, message: Message) -> None:
+        text = describe_frame(message)
+        self.received.append(f"{elapsed_s:7.1f} s  ← {text}")
+        # Plain lines show the cast's progress; R-O and R-P are narrated or routine.
+        if not self.live and message.frame in ("R-M", "R-F"):
+            self._line(f"{elapsed_s:7.1f} s  ← {text}")
+
+    def corrupt_in(self, elapsed_s: float, error: CorruptFrame) -> None:
+        self.event(elapsed_s, f"corrupt frame from the daemon: {error.kind} {error.hex()}")
+
+    # ------------------------------------------------------------ output
+
+    def render(self) -> RenderableType:
+        s = self.state
+        head = Text()
+        head.append("cc-daemon --simulate  ", style="bold")
+        head.append(f"{s.elapsed_s:6.1f} s   ")
+        head.append(f"stations done {s.stations_done}/{s.station_count}   ")
+        link = (
+            Text("cable pulled", style="bold red")
+            if not s.cable_plugged
+            else Text("link up", style="green")
+            if s.daemon_link_up
+            else Text("daemon reopening the port", style="yellow")
+        )
+        head.append_text(link)
+
+        where = Text("mission ")
+        for name, mark in s.progress:
+            where.append(f"{name} ")
+            where.append(f"{mark}  ", style=_MARK_STYLES.get(mark, ""))
+        where.append("  ")
+        if s.station_number is not None:
+            where.append(f"S{s.station_number} ", style="bold")
+        where.append(f"{s.autopilot_phase}  ")
+        where.append(f"boat {s.lat_deg:.6f}, {s.lon_deg:.6f}   daemon: {s.daemon_phase}")
+
+        probe = Text("probe ")
+        probe.append_text(depth_bar(s.probe_depth_m, s.planned_depth_m, s.water_depth_m))
+        probe.append(f" {s.probe_depth_m:5.2f} m")
+        legend = Text(
+            f"      planned {_metres(s.planned_depth_m)} ┃   bottom {_metres(s.water_depth_m)} ▓",
+            style="dim",
+        )
+        counts = Text(
+            f"frames → {s.frames_out}  ← {s.frames_in}   corrupt: {s.corrupt_in} in, "
+            f"{s.corrupt_at_daemon} at the daemon   violations: {s.problems}"
+            + (f" (+{s.excused} excused)" if s.excused else "")
+        )
+        frames = Table.grid(padding=(0, 1))
+        frames.add_column()
+        for line in self.sent:
+            frames.add_row(Text(line, style="magenta", no_wrap=True, overflow="ellipsis"))
+        for line in self.received:
+            frames.add_row(Text(line, style="cyan", no_wrap=True, overflow="ellipsis"))
+        events = Group(
+            *(Text(line, style="dim", no_wrap=True, overflow="ellipsis") for line in self.events)
+        )
+        return Panel(
+            Group(
+                head,
+                where,
+                probe,
+                legend,
+                counts,
+                Panel(
+                    frames,
+                    title="last frames: → to the daemon, ← from it",
+                    box=box.MINIMAL,
+                ),
+                events,
+            ),
+            title="survey",
+            box=box.ROUNDED,
+        )
+
+    def print_summary(self, summary: Summary) -> None:
+        self.stop()
+        self.rich.print(summary_table(summary, narrow=self.rich.width < 100))
+        for line in summary_lines(summary):
+            self._line(line)
+
+    def _line(self, text: str) -> None:
+        self.rich.print(Text(text), soft_wrap=True)
+
+
+def _isatty(stream: TextIO) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+def render_to_text(render: Callable[[Console], None], width: int = 110) -> str:
+    """Render with `render(console)` into plain text (for tests and the docs)."""
+    buffer = io.StringIO()
+    console = Console(file=buffer, width=width, force_terminal=False, color_system=None)
+    render(console)
+    return buffer.getvalue()
