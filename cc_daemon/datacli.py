@@ -22,6 +22,8 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TextIO
 
+from cc_daemon.config import load_settings
+from cc_daemon.errors import ConfigError
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import JournalReader, StoreError, default_store_path
 from cc_daemon.store.reader import CastRecord, iso_utc, parse_time
@@ -52,6 +54,28 @@ def _cast_id(text: str) -> int:
     return value
 
 
+SERVICE_JOURNAL = Path("/var/lib/cc-daemon/cc-daemon.db")  # StateDirectory= of the unit
+
+
+def journal_path(args: argparse.Namespace) -> Path:
+    """The journal to read: `--db`; else where this machine's daemon writes it:
+    `store.path` from its configuration (the same file and environment lookup),
+    else the systemd service's state directory if a journal is there, else the
+    default location."""
+    if args.db is not None:
+        return Path(args.db)
+    try:
+        configured = load_settings().store.path
+    except ConfigError as exc:
+        print(f"{exc}\n(ignoring the configuration; give --db)", file=sys.stderr)
+        configured = None
+    if configured is not None:
+        return configured
+    if "STATE_DIRECTORY" not in os.environ and SERVICE_JOURNAL.exists():
+        return SERVICE_JOURNAL
+    return default_store_path()
+
+
 def add_commands(
     subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
     *,
@@ -59,11 +83,16 @@ def add_commands(
 ) -> None:
     """Register `casts`, `export` and `plot`; each sets `handler` to call with the args.
 
-    `--db` defaults to `default_db` if given (e.g. the configured `store.path`),
-    else to `default_store_path()`.
+    `--db` defaults to `default_db` if given, else it is resolved when the
+    command runs (`journal_path`).
     """
-    db = default_db if default_db is not None else default_store_path()
-    db_help = f"the journal file (default: {db})"
+    db = default_db
+    db_help = (
+        f"the journal file (default: {db})"
+        if db is not None
+        else "the journal file (default: the configured store.path, else "
+        f"{SERVICE_JOURNAL} if it exists, else ./cc-daemon.db)"
+    )
     since_help = "only data from this UTC time on (ISO 8601, e.g. 2024-05-01T10:00Z)"
 
     casts = subparsers.add_parser(
@@ -168,10 +197,11 @@ def format_casts(casts: Sequence[CastRecord]) -> str:
 
 
 def _casts(args: argparse.Namespace) -> int:
-    with JournalReader(args.db) as reader:
+    db = journal_path(args)
+    with JournalReader(db) as reader:
         casts = reader.casts(since=args.since)
     if not casts:
-        print(f"no casts in {args.db}", file=sys.stderr)
+        print(f"no casts in {db}", file=sys.stderr)
         return 0
     sys.stdout.write(format_casts(casts))
     return 0
@@ -203,8 +233,9 @@ def _export(args: argparse.Namespace) -> int:
     if what == "events" and args.cast is not None:
         raise _UsageError("--cast does not apply to --what events")
     try:
-        with JournalReader(args.db) as reader:
-            _check_cast(reader, args.cast, args.db)
+        db = journal_path(args)
+        with JournalReader(db) as reader:
+            _check_cast(reader, args.cast, db)
             if args.format == "netcdf":
                 from cc_daemon.export import netcdf
 
@@ -246,14 +277,15 @@ def _plot(args: argparse.Namespace) -> int:
 
     if args.since is not None and not args.survey:
         raise _UsageError("--since applies to --survey only")
-    with JournalReader(args.db) as reader:
+    db = journal_path(args)
+    with JournalReader(db) as reader:
         if args.survey:
             casts = reader.casts(since=args.since)
             fixes = reader.fixes(since=args.since)
             plot.plot_survey(casts, fixes, args.output)
             noun = f"the survey ({len(fixes)} fixes, {len(casts)} casts)"
         else:
-            _check_cast(reader, args.cast, args.db)
+            _check_cast(reader, args.cast, db)
             cast = reader.casts(cast_id=args.cast)[0]
             plot.plot_cast(cast, reader.samples(cast_id=args.cast), args.output)
             noun = f"cast {args.cast}"

@@ -271,12 +271,23 @@ def test_the_real_command_line(survey: tuple[Path, SurveySummary]) -> None:
 def test_db_defaults_to_the_configured_or_the_systemd_path(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    monkeypatch.chdir(tmp_path)  # no ./cc-daemon.toml yet
     monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path / "state"))
-    for default_db, expected in [
-        (None, tmp_path / "state" / "cc-daemon.db"),
-        (tmp_path / "configured.db", tmp_path / "configured.db"),
-    ]:
-        parser = argparse.ArgumentParser(prog="cc-daemon")
-        datacli.add_commands(parser.add_subparsers(dest="command"), default_db=default_db)
-        for command in (["casts"], ["export", "--format", "csv"], ["plot", "--survey", "-o", "x"]):
-            assert parser.parse_args(command).db == expected
+    parser = argparse.ArgumentParser(prog="cc-daemon")
+    datacli.add_commands(parser.add_subparsers(dest="command"))
+    commands = (["casts"], ["export", "--format", "csv"], ["plot", "--survey", "-o", "x"])
+    for command in commands:
+        assert (
+            datacli.journal_path(parser.parse_args(command)) == tmp_path / "state" / "cc-daemon.db"
+        )
+    # The daemon's configuration file names the journal: the commands read that one.
+    (tmp_path / "cc-daemon.toml").write_text('[store]\npath = "/data/survey.db"\n')
+    for command in commands:
+        assert datacli.journal_path(parser.parse_args(command)) == Path("/data/survey.db")
+    # --db wins over both.
+    args = parser.parse_args(["casts", "--db", str(tmp_path / "mine.db")])
+    assert datacli.journal_path(args) == tmp_path / "mine.db"
+    # A caller may fix the default outright.
+    fixed = argparse.ArgumentParser(prog="cc-daemon")
+    datacli.add_commands(fixed.add_subparsers(dest="command"), default_db=tmp_path / "c.db")
+    assert datacli.journal_path(fixed.parse_args(["casts"])) == tmp_path / "c.db"
