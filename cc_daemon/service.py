@@ -122,6 +122,9 @@ class _ActiveCast:
         self.machine = machine
         self.task: asyncio.Task[None] | None = None
         self.reports = 0
+        # Set when the cast can make no progress without an operator: the probe
+        # is stranded, or the cast task failed. Shutdown stops waiting then.
+        self.settled = asyncio.Event()
 
 
 class Daemon:
@@ -213,10 +216,10 @@ class Daemon:
         `immediate` (a second Ctrl-C): stop the motor now and exit at once.
         """
         if immediate:
-            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
             self._stop_motor("immediate shutdown")
             cast = self._cast
             if cast is not None:
+                self._exit_code = EXIT_PROBE_MAY_BE_DOWN
                 _log.critical(
                     "immediate shutdown: winch stopped, the probe may be down",
                     depth_m=round(self._probe_depth(), 3),
@@ -230,12 +233,27 @@ class Daemon:
         self._shutdown.set()
 
     async def _finish_running_cast(self) -> None:
+        """Bring a running cast home; give up only on a probe that cannot come home."""
         cast = self._cast
         if cast is None or cast.task is None:
             return
         if self._exit_code == EXIT_OK:
             _log.info("shutdown: bringing the probe home before exiting", cast_id=cast.cast_id)
             self._execute(cast, cast.machine.abort(self._clock.monotonic(), "shutdown"))
+        settled = asyncio.ensure_future(cast.settled.wait())
+        try:
+            await asyncio.wait({cast.task, settled}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            settled.cancel()
+        if not cast.task.done():
+            # Stranded or failed: waiting longer cannot bring the probe home.
+            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
+            _log.critical(
+                "exiting with the probe NOT home: the winch is stopped; recover it by hand",
+                cast_id=cast.cast_id,
+                depth_m=round(self._probe_depth(), 3),
+            )
+            cast.task.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await cast.task
 
@@ -456,6 +474,8 @@ class Daemon:
                 commanded = self._execute(cast, actions)
                 if machine.finished:
                     break
+                if machine.phase is Phase.STRANDED:
+                    cast.settled.set()
                 if commanded:
                     continue  # look at the winch again before sleeping
                 timeout = machine.next_deadline() - self._clock.monotonic()
@@ -477,8 +497,27 @@ class Daemon:
                 cast_id=cast.cast_id,
                 exc_info=True,
             )
-            return
+            cast.settled.set()
+            await self._alarm_until_stopped(cast)
         self._cast = None
+
+    async def _alarm_until_stopped(self, cast: _ActiveCast) -> None:
+        """After an internal error: no R-F ever; keep reporting the depth the
+        winch gives and keep saying so, every report period, until shutdown."""
+        period = self.settings.cast.report_period_s
+        next_at = self._clock.monotonic()  # the first report at once: no gap
+        while True:
+            await self._clock.sleep_until(next_at)
+            next_at += period
+            depth = self._probe_depth()
+            self._send(DepthReport(self._now_ts(), self._depth_mm(depth)))
+            _log.critical(
+                "PROBE STATE UNKNOWN after an internal error: no R-F will be sent; "
+                "the winch motor is stopped; operator intervention needed",
+                cast_id=cast.cast_id,
+                depth_m=round(depth, 3),
+                for_s=round(self._clock.monotonic() - cast.machine.started_at),
+            )
 
     def _execute(self, cast: _ActiveCast, actions: list[Action]) -> bool:
         """Carry out the machine's actions; True if the winch was commanded."""

@@ -239,3 +239,25 @@ async def test_a_bad_config_file_exits_2_before_opening_anything(make_daemon: Ma
     text = daemon.log_text()
     assert "cast.target_depth_m" in text and "-1" in text
     assert not daemon.db.exists()  # nothing opened, not even the journal
+
+
+async def test_a_stranded_probe_is_reported_loudly_and_never_finished(
+    make_daemon: MakeDaemon,
+) -> None:
+    daemon = make_daemon({"winch": {"sim": {"fail_home": True}}, "cast": {"target_depth_m": 2.0}})
+    port = await daemon.start_and_connect()
+    await port.send(station())
+    await daemon.expect(Ack, 2)
+    # 2 s down, 1 s dwell, the ascent jams at 0.5 m, the retry jams again: stranded.
+    frames = await daemon.collect(9.0)
+    assert "R-F" not in kinds(frames)
+    tail = [r.message.depth_mm for r in frames[-3:] if isinstance(r.message, DepthReport)]
+    assert tail == [500, 500, 500]  # the last known depth, every period
+    alarms = [e for e in daemon.log_events() if "PROBE NOT HOME" in str(e.get("event"))]
+    assert len(alarms) >= 3 and all(e["level"] == "critical" for e in alarms)
+    # SIGTERM cannot bring it home: the daemon says so and exits without R-F.
+    daemon.send_signal(signal.SIGTERM)
+    assert await daemon.wait_exit(10) == 130
+    assert await daemon.expect(Finished, 0.3, fail=False) is None
+    assert any("NOT home" in str(e.get("event")) for e in daemon.log_events())
+    assert cast_rows(daemon) == [(1, "unfinished")]
