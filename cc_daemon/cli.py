@@ -157,17 +157,20 @@ async def _serve(daemon: Any) -> int:
 
     log = structlog.get_logger("cc_daemon.cli")
     loop = asyncio.get_running_loop()
-    received = 0
+    received: list[signal.Signals] = []
 
     def on_signal(signum: signal.Signals) -> None:
-        nonlocal received
-        received += 1
-        if received == 1:
-            log.info("signal received: finishing", signal=signum.name)
+        received.append(signum)
+        if len(received) == 1:
+            log.info("signal received: bringing the probe home, then exiting", signal=signum.name)
             daemon.request_shutdown()
-        else:
-            log.warning("second signal: stopping at once", signal=signum.name)
+        elif signum is signal.SIGINT and signal.SIGINT in received[:-1]:
+            # A person pressing Ctrl-C twice means it: stop the motor, exit now.
+            log.warning("second Ctrl-C: stopping at once", signal=signum.name)
             daemon.request_shutdown(immediate=True)
+        else:
+            # A supervisor repeating SIGTERM must not abandon the probe.
+            log.info("already shutting down; Ctrl-C twice stops at once", signal=signum.name)
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, on_signal, signum)

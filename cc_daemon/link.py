@@ -21,7 +21,6 @@ import random
 from collections.abc import Callable
 from typing import Any
 
-import serial
 import serial_asyncio
 import structlog
 
@@ -115,9 +114,11 @@ class SerialLink:
                 transport, _ = await serial_asyncio.create_serial_connection(
                     loop, functools.partial(_identity, protocol), self.port, **self._serial_kwargs
                 )
-            except (serial.SerialException, OSError, ValueError) as exc:
+            except Exception as exc:
+                # pyserial raises SerialException, OSError, ValueError and, from
+                # termios on a failing adapter, termios.error: none may end the link.
                 failures += 1
-                error = str(exc)
+                error = f"{type(exc).__name__}: {exc}"
                 if error != last_error:  # say each new reason once; the retries are expected
                     _log.warning("cannot open serial port", port=self.port, error=error)
                     last_error = error
@@ -125,7 +126,7 @@ class SerialLink:
                 continue
             self._transport = transport
             self.opens += 1
-            failures = 0
+            opened_at = loop.time()
             last_error = ""
             _log.info("serial port open", port=self.port, **self._serial_kwargs)
             self._notify(True, "open")
@@ -142,7 +143,10 @@ class SerialLink:
             reason = str(lost_with) if lost_with else "closed"
             _log.warning("serial port lost", port=self.port, reason=reason)
             self._notify(False, reason)
-            failures = 1
+            # A port that stayed up a while starts again from the shortest delay;
+            # one that drops as soon as it opens (a flapping adapter) keeps backing off.
+            stable = loop.time() - opened_at >= self.reconnect_max_s
+            failures = 1 if stable else failures + 1
             await asyncio.sleep(self.backoff_delay(failures))
 
     def _notify(self, up: bool, reason: str) -> None:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,7 +35,7 @@ from cc_daemon.cast.machine import (
     SendFinished,
     StopWinch,
 )
-from cc_daemon.cast.plan import CastPlan, Phase, SkipCast, plan_cast
+from cc_daemon.cast.plan import Phase, SkipCast, plan_cast
 from cc_daemon.cast.stations import StationMemory
 from cc_daemon.cast.timestamps import AutopilotTime
 from cc_daemon.clock import Clock, SystemClock
@@ -66,6 +66,7 @@ from cc_daemon.winch.simulated import SimulatedWinch
 _log = structlog.get_logger("cc_daemon.service")
 
 HOUSEKEEPING_TICK_S = 1.0
+SHUTDOWN_EXTEND_S = 30.0  # each EXTEND_TIMEOUT_USEC asks systemd for this much more
 CORRUPT_SUMMARY_EVERY = 10  # ticks
 EXIT_OK = 0
 EXIT_PROBE_MAY_BE_DOWN = 130
@@ -199,8 +200,14 @@ class Daemon:
         try:
             async with asyncio.TaskGroup() as tasks:
                 self._tasks = tasks
-                link_task = tasks.create_task(self.link.run(), name="serial-link")
-                housekeeping = tasks.create_task(self._housekeeping(), name="housekeeping")
+                link_task = tasks.create_task(
+                    self._keep_running("serial-link", self.link.run), name="serial-link"
+                )
+                housekeeping = tasks.create_task(
+                    self._keep_running("housekeeping", self._housekeeping), name="housekeeping"
+                )
+                # Serving from here on; the port may come later (a late USB adapter).
+                self._notifier.notify("READY=1", f"STATUS=opening {self.link.port}")
                 await self._shutdown.wait()
                 self._notifier.notify("STOPPING=1")
                 await self._finish_running_cast()
@@ -237,12 +244,22 @@ class Daemon:
         cast = self._cast
         if cast is None or cast.task is None:
             return
-        if self._exit_code == EXIT_OK:
+        if self._exit_code == EXIT_OK and not cast.settled.is_set():
             _log.info("shutdown: bringing the probe home before exiting", cast_id=cast.cast_id)
             self._execute(cast, cast.machine.abort(self._clock.monotonic(), "shutdown"))
         settled = asyncio.ensure_future(cast.settled.wait())
         try:
-            await asyncio.wait({cast.task, settled}, return_when=asyncio.FIRST_COMPLETED)
+            while not (cast.task.done() or settled.done()):
+                # Keep systemd from escalating to SIGKILL while the probe comes up.
+                self._notifier.notify(
+                    f"EXTEND_TIMEOUT_USEC={int(SHUTDOWN_EXTEND_S * 1e6)}",
+                    f"STATUS=stopping: bringing the probe home from {self._probe_depth():.1f} m",
+                )
+                await asyncio.wait(
+                    {cast.task, settled},
+                    timeout=SHUTDOWN_EXTEND_S / 3,
+                    return_when=asyncio.FIRST_COMPLETED,
+                )
         finally:
             settled.cancel()
         if not cast.task.done():
@@ -254,10 +271,11 @@ class Daemon:
                 depth_m=round(self._probe_depth(), 3),
             )
             cast.task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await cast.task
+        await asyncio.wait({cast.task})  # a cancellation of run() itself still propagates
 
     async def _close(self) -> None:
+        """Stop the motor, close the journal; each step guarded so one failing
+        cannot skip the next (the winch first: it is the one that matters)."""
         winch = self._winch
         if winch is not None:
             try:
@@ -265,32 +283,47 @@ class Daemon:
             except Exception:
                 _log.critical("could not close the winch backend", exc_info=True)
         cast = self._cast
-        journal = self._journal
-        if journal is not None:
-            if cast is not None:  # stranded or cut short: the record says so
-                journal.end_cast(
-                    cast.cast_id,
-                    outcome=str(Outcome.UNFINISHED),
-                    reached_depth_m=cast.machine.reached_depth_m,
-                    reason=f"daemon stopped with the probe at {self._probe_depth():.2f} m",
-                )
-            journal.record_event("daemon_stopped", exit_code=self._exit_code)
-            journal.close()
+        with self._journaling("close") as journal:
+            if journal is not None:
+                if cast is not None:  # stranded or cut short: the record says so
+                    journal.end_cast(
+                        cast.cast_id,
+                        outcome=str(Outcome.UNFINISHED),
+                        reached_depth_m=cast.machine.reached_depth_m,
+                        reason=f"daemon stopped with the probe at {self._probe_depth():.2f} m",
+                    )
+                journal.record_event("daemon_stopped", exit_code=self._exit_code)
+                journal.close()
         _log.info("cc-daemon stopped", exit_code=self._exit_code)
-        flush_rate_limited(everything=True)
+        try:
+            flush_rate_limited(everything=True)
+        except Exception:
+            _log.error("could not flush rate-limited log summaries", exc_info=True)
         self._notifier.close()
 
+    async def _keep_running(self, name: str, duty: Callable[[], Awaitable[None]]) -> None:
+        """Run a background duty for the daemon's lifetime. A crash is logged and
+        the duty restarted: an exception escaping into the task group would cancel
+        the running cast beside it and leave the probe down."""
+        while True:
+            try:
+                await duty()
+                _log.error("background task ended; restarting it", task=name)
+            except Exception:
+                _log.critical("background task crashed; restarting it", task=name, exc_info=True)
+            await asyncio.sleep(1.0)
+
     async def _housekeeping(self) -> None:
-        """Periodic: rate-limited log summaries each second; every 10 s the
-        corrupt-frame count (journal and log) and the systemd watchdog."""
+        """Each second: rate-limited log summaries and the systemd watchdog; every
+        10 s the corrupt-frame count (journal and log)."""
         tick = 0
         while True:
             await asyncio.sleep(HOUSEKEEPING_TICK_S)
             flush_rate_limited()
+            self._notifier.watchdog()  # every second: fine for any WatchdogSec >= 2
             tick += 1
             if tick % CORRUPT_SUMMARY_EVERY:
                 continue
-            self._notifier.watchdog()
             corrupt = self._parser.stats.errors
             if corrupt != self._corrupt_reported:
                 new = corrupt - self._corrupt_reported
@@ -342,11 +375,8 @@ class Daemon:
         if up:
             kind = "port_regained" if self.port_losses else "port_opened"
             self._journal_event(kind, port=self.link.port)
-            if not self.ready.is_set():
-                self.ready.set()
-                self._notifier.notify("READY=1", f"STATUS=answering on {self.link.port}")
-            else:
-                self._notifier.notify(f"STATUS=answering on {self.link.port} (reopened)")
+            self.ready.set()
+            self._notifier.notify(f"STATUS=answering on {self.link.port}")
         else:
             self.port_losses += 1
             self._journal_event("port_lost", port=self.link.port, reason=reason)
@@ -407,11 +437,17 @@ class Daemon:
         self._send(Ack(self._time.at(now)))
         status = self._winch_status()
         if not status.at_home:
-            _log.critical(
-                "start-measuring refused: the probe is not home",
-                depth_m=round(status.depth_m, 3),
-                fault=status.fault,
+            # Down with no cast (a restart mid-cast, a hand-lowered probe): bring
+            # it home first, reporting as a cast does; this station is not measured.
+            reason = f"the probe was {status.depth_m:.2f} m down with no cast running"
+            _log.error("start-measuring: recovering the probe first", reason=reason)
+            machine = CastMachine.recovery(
+                started_at=now,
+                report_period_s=self.settings.cast.report_period_s,
+                home_timeout_s=self.settings.cast.max_duration_s,
+                reason=reason,
             )
+            self._start_cast(station, machine, now)
             return
         done = self._stations.recently_done(station, now)
         if done is not None:
@@ -422,7 +458,13 @@ class Daemon:
         if isinstance(plan, SkipCast):
             self._skip_cast(station, plan, now, status)
         else:
-            self._start_cast(station, plan, now)
+            machine = CastMachine(
+                plan,
+                started_at=now,
+                report_period_s=self.settings.cast.report_period_s,
+                max_duration_s=self.settings.cast.max_duration_s,
+            )
+            self._start_cast(station, machine, now)
 
     def _skip_cast(
         self, station: StartMeasuring, skip: SkipCast, now: float, status: WinchStatus
@@ -441,14 +483,9 @@ class Daemon:
         self._stations.finished(station, now, cast_id)
         self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
 
-    def _start_cast(self, station: StartMeasuring, plan: CastPlan, now: float) -> None:
+    def _start_cast(self, station: StartMeasuring, machine: CastMachine, now: float) -> None:
+        plan = machine.plan
         cast_id = self._journal_start(station, plan.depth_m, plan.describe())
-        machine = CastMachine(
-            plan,
-            started_at=now,
-            report_period_s=self.settings.cast.report_period_s,
-            max_duration_s=self.settings.cast.max_duration_s,
-        )
         cast = _ActiveCast(cast_id if cast_id is not None else -1, station, machine)
         self._cast = cast
         _log.info(
@@ -488,6 +525,12 @@ class Daemon:
                     await asyncio.sleep(max(timeout, 0.0))
         except asyncio.CancelledError:
             self._stop_motor("cast cancelled")
+            if not self._winch_status().at_home and self._exit_code != EXIT_PROBE_MAY_BE_DOWN:
+                _log.critical(
+                    "cast cancelled with the probe down: winch stopped",
+                    cast_id=cast.cast_id,
+                    depth_m=round(self._probe_depth(), 3),
+                )
             raise
         except Exception:
             # A bug in our own code: stop the motor and say so as loudly as we can.
@@ -504,6 +547,12 @@ class Daemon:
     async def _alarm_until_stopped(self, cast: _ActiveCast) -> None:
         """After an internal error: no R-F ever; keep reporting the depth the
         winch gives and keep saying so, every report period, until shutdown."""
+        try:
+            await self._alarm_every_period(cast)
+        finally:
+            self._stop_motor("alarm loop ended")
+
+    async def _alarm_every_period(self, cast: _ActiveCast) -> None:
         period = self.settings.cast.report_period_s
         next_at = self._clock.monotonic()  # the first report at once: no gap
         while True:
@@ -575,11 +624,10 @@ class Daemon:
             _log.info("cast phase", cast_id=cast.cast_id, phase=str(new), depth_m=depth)
 
     def _finish(self, cast: _ActiveCast, action: SendFinished, now: float) -> None:
-        status = self._winch_status()
-        if not status.at_home:  # never tell the autopilot to leave with the probe down
-            _log.critical("R-F withheld: the probe is not home", depth_m=round(status.depth_m, 3))
-            return
-        self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
+        # The machine produced SendFinished from a status saying the probe is
+        # home, in this same step; reading the winch again here could only
+        # disagree with the machine and leave a cast half-ended.
+        self._send(Finished(self._time.at(now), self._depth_mm(action.depth_m)))
         with self._journaling("end_cast") as journal:
             if journal is not None:
                 journal.end_cast(

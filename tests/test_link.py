@@ -94,3 +94,81 @@ async def test_a_handler_exception_does_not_stop_reading(tmp_path: Path) -> None
         with contextlib.suppress(asyncio.CancelledError):
             await task
         pty.close()
+
+
+class _FakeTransport(asyncio.Transport):
+    def __init__(self) -> None:
+        super().__init__()
+        self.closed = False
+
+    def is_closing(self) -> bool:
+        return self.closed
+
+    def close(self) -> None:
+        self.closed = True
+
+    def write(self, data: bytes | bytearray | memoryview) -> None:
+        pass
+
+
+class _RecordingLink(SerialLink):
+    """Records the reopen attempt numbers instead of sleeping them."""
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__("fake", on_data=lambda _: None, **kwargs)  # type: ignore[arg-type]
+        self.attempts: list[int] = []
+
+    def backoff_delay(self, failures: int) -> float:
+        self.attempts.append(failures)
+        return 0.001
+
+
+def _fake_port(monkeypatch: pytest.MonkeyPatch, up_for_s: float, failures: list[Exception]) -> None:
+    async def create(loop: asyncio.AbstractEventLoop, factory: object, *args: object, **kw: object):  # type: ignore[no-untyped-def]
+        if failures:
+            raise failures.pop(0)
+        protocol = factory()  # type: ignore[operator]
+        transport = _FakeTransport()
+        loop.call_later(up_for_s, protocol.connection_lost, OSError(5, "Input/output error"))
+        return transport, protocol
+
+    monkeypatch.setattr("cc_daemon.link.serial_asyncio.create_serial_connection", create)
+
+
+async def _run_for(link: SerialLink, seconds: float) -> None:
+    task = asyncio.create_task(link.run())
+    await asyncio.sleep(seconds)
+    task.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await task
+
+
+async def test_a_flapping_port_keeps_backing_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    _fake_port(monkeypatch, up_for_s=0.0, failures=[])
+    link = _RecordingLink(reconnect_initial_s=0.2, reconnect_max_s=5.0)
+    await _run_for(link, 0.2)
+    assert link.attempts[:5] == [1, 2, 3, 4, 5]
+
+
+async def test_a_port_that_stayed_up_starts_again_from_the_shortest_delay(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    _fake_port(monkeypatch, up_for_s=0.03, failures=[])
+    link = _RecordingLink(reconnect_initial_s=0.001, reconnect_max_s=0.01)
+    await _run_for(link, 0.3)
+    assert len(link.attempts) >= 3
+    assert set(link.attempts) == {1}
+
+
+async def test_any_error_opening_the_port_is_retried(monkeypatch: pytest.MonkeyPatch) -> None:
+    import termios
+
+    _fake_port(
+        monkeypatch,
+        up_for_s=10.0,
+        failures=[termios.error(5, "Input/output error"), RuntimeError("odd driver")],
+    )
+    link = _RecordingLink()
+    await _run_for(link, 0.1)
+    assert link.attempts[:2] == [1, 2]
+    assert link.opens == 1

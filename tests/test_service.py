@@ -4,6 +4,9 @@ cast machine itself, and shutdown details."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import socket
+import sqlite3
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -12,11 +15,15 @@ import pytest
 import structlog
 
 from cc_daemon.cast.machine import CastMachine
+from cc_daemon.clock import SystemClock
 from cc_daemon.config import Settings
 from cc_daemon.protocol import Ack, DepthReport, Finished, ProbePositionRequest
 from cc_daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, Daemon
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
+from cc_daemon.systemd import SystemdNotifier
+from cc_daemon.winch.physics import LinePhysics
+from cc_daemon.winch.simulated import SimulatedWinch
 from tests.daemonkit import FAST_CAST, merge, station
 
 
@@ -89,3 +96,133 @@ async def test_no_cast_starts_once_shutting_down(rig: tuple[Daemon, FramePort]) 
     daemon.request_shutdown()
     assert await asyncio.wait_for(task, 5) == EXIT_OK
     assert daemon.snapshot().casts_completed == 0
+
+
+class RecordingWinch(SimulatedWinch):
+    """The simulated winch, remembering every command (to assert on afterwards)."""
+
+    def __init__(self, speed_m_s: float = 1.0) -> None:
+        super().__init__(LinePhysics(speed_m_s=speed_m_s, max_line_m=20.0), SystemClock())
+        self.calls: list[str] = []
+
+    def move_to(self, depth_m: float) -> None:
+        self.calls.append(f"move_to {depth_m}")
+        super().move_to(depth_m)
+
+    def stop(self) -> None:
+        self.calls.append("stop")
+        super().stop()
+
+
+def _settings(tmp_path: Path, port: Path, **extra: Any) -> Settings:
+    config = merge(
+        FAST_CAST, {"serial": {"port": str(port)}, "store": {"path": str(tmp_path / "j.db")}}
+    )
+    return Settings.model_validate(merge(config, extra))
+
+
+async def test_after_an_internal_error_shutdown_never_restarts_the_motor(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    real_step = CastMachine.step
+    calls = 0
+
+    def broken_step(self: CastMachine, now: float, status: Any) -> Any:
+        nonlocal calls
+        calls += 1
+        if calls == 3:
+            raise RuntimeError("bug")
+        return real_step(self, now, status)
+
+    monkeypatch.setattr(CastMachine, "step", broken_step)
+    with PtyPair(tmp_path / "tty") as pty:
+        winch = RecordingWinch()
+        daemon = Daemon(_settings(tmp_path, pty.path), winch=winch)
+        port = await FramePort.over_fd(pty.master_fd)
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await port.send(station())
+        await asyncio.sleep(2.5)
+        daemon.request_shutdown()
+        assert await asyncio.wait_for(task, 5) == EXIT_PROBE_MAY_BE_DOWN
+        await port.close()
+    failed_at = winch.calls.index("stop")  # the first stop is the one after the bug
+    assert winch.calls[0] == "move_to 3.0"
+    assert not any(call.startswith("move_to") for call in winch.calls[failed_at:])
+
+
+async def test_a_crashing_background_task_does_not_touch_the_cast(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def crash(**_: Any) -> int:
+        raise RuntimeError("housekeeping bug")
+
+    monkeypatch.setattr("cc_daemon.service.flush_rate_limited", crash)
+    with PtyPair(tmp_path / "tty") as pty, structlog.testing.capture_logs() as logs:
+        daemon = Daemon(_settings(tmp_path, pty.path))
+        port = await FramePort.over_fd(pty.master_fd)
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await port.send(station())
+        finished = None
+        for _ in range(20):
+            got = await port.receive(1.5)
+            if got is not None and isinstance(got.message, Finished):
+                finished = got.message
+                break
+        daemon.request_shutdown()
+        await asyncio.wait_for(task, 5)
+        await port.close()
+    assert finished is not None
+    assert finished.depth_mm == 0
+    assert any(e["event"] == "background task crashed; restarting it" for e in logs)
+
+
+async def test_a_probe_found_down_is_brought_home_before_anything_else(tmp_path: Path) -> None:
+    with PtyPair(tmp_path / "tty") as pty:
+        winch = RecordingWinch(speed_m_s=10.0)
+        daemon = Daemon(_settings(tmp_path, pty.path), winch=winch)
+        port = await FramePort.over_fd(pty.master_fd)
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        winch.move_to(15.0)  # lowered by hand, or left down by a previous run
+        await asyncio.sleep(1.6)
+        await port.send(station())
+        frames = []
+        while (got := await port.receive(3)) is not None:
+            frames.append(got.message)
+            if isinstance(got.message, Finished):
+                break
+        daemon.request_shutdown()
+        assert await asyncio.wait_for(task, 5) == EXIT_OK
+        await port.close()
+    assert isinstance(frames[0], Ack)
+    assert isinstance(frames[-1], Finished) and frames[-1].depth_mm == 0
+    assert any(isinstance(m, DepthReport) and m.depth_mm > 1000 for m in frames)
+    assert "move_to 3.0" not in winch.calls  # no cast from a probe that was down
+    with sqlite3.connect(tmp_path / "j.db") as db:
+        rows = db.execute("SELECT outcome, reason FROM casts").fetchall()
+    assert len(rows) == 1 and rows[0][0] == "aborted" and "down with no cast" in rows[0][1]
+
+
+async def test_systemd_hears_ready_while_the_port_is_still_missing(tmp_path: Path) -> None:
+    sock_path = tmp_path / "notify.sock"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as server:
+        server.bind(str(sock_path))
+        server.settimeout(5)
+        daemon = Daemon(
+            _settings(tmp_path, tmp_path / "no-such-tty"),
+            notifier=SystemdNotifier(str(sock_path), watchdog=True),
+        )
+        task = asyncio.create_task(daemon.run())
+        first = await asyncio.to_thread(server.recv, 1024)
+        daemon.request_shutdown()
+        assert await asyncio.wait_for(task, 5) == EXIT_OK
+        rest = []
+        server.settimeout(0.2)
+        with contextlib.suppress(TimeoutError):
+            while True:
+                rest.append(server.recv(1024))
+    assert first.startswith(b"READY=1\nSTATUS=opening ")
+    assert not daemon.ready.is_set()  # it never answered the autopilot: no port
+    assert b"STOPPING=1" in rest

@@ -116,6 +116,31 @@ class CastMachine:
         self._deadline = started_at + max_duration_s
         self._next_report = started_at + report_period_s
 
+    @classmethod
+    def recovery(
+        cls, *, started_at: float, report_period_s: float, home_timeout_s: float, reason: str
+    ) -> CastMachine:
+        """Bring home a probe found down with no cast running: the abort leg alone.
+
+        It reports depth like any cast, finishes (R-F) once the probe is home and
+        strands, loudly, if it cannot get there within `home_timeout_s`.
+        """
+        plan = CastPlan(
+            depth_m=0.0,
+            limited_by="target",
+            water_depth_m=None,
+            mode="recovery",
+            legs=(Move(0.0, Phase.ABORTING),),
+        )
+        machine = cls(
+            plan,
+            started_at=started_at,
+            report_period_s=report_period_s,
+            max_duration_s=home_timeout_s,
+        )
+        machine.abort_reason = reason
+        return machine
+
     # ------------------------------------------------------------ queries
 
     @property
