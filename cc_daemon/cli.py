@@ -130,11 +130,13 @@ def _load(args: argparse.Namespace) -> Any:
 
 
 def _run_daemon(args: argparse.Namespace) -> int:
-    from cc_daemon.logsetup import configure_logging
+    from cc_daemon.logsetup import configure_logging, resolve_format
     from cc_daemon.service import Daemon, make_winch
 
     settings = _load(args)
-    configure_logging(settings.log.format, settings.log.level)
+    # "auto" follows stdout: a terminal gets the console renderer, journald
+    # (or a pipe, or a file) gets JSON lines. The log itself goes to stderr.
+    configure_logging(resolve_format(settings.log.format, sys.stdout), settings.log.level)
     make_winch(settings, clock=_NullClock())  # refuse an unusable backend before opening anything
     return asyncio.run(_serve(Daemon(settings)))
 
