@@ -488,6 +488,9 @@ class Daemon:
         cast_id = self._journal_start(station, plan.depth_m, plan.describe())
         cast = _ActiveCast(cast_id if cast_id is not None else -1, station, machine)
         self._cast = cast
+        with self._journaling("record_sample") as journal:
+            if journal is not None:  # the profile's first point: where the probe was at R-O
+                journal.record_sample(cast.cast_id, self._probe_depth(), str(machine.phase))
         _log.info(
             "cast started",
             cast_id=cast.cast_id,
@@ -630,6 +633,8 @@ class Daemon:
         self._send(Finished(self._time.at(now), self._depth_mm(action.depth_m)))
         with self._journaling("end_cast") as journal:
             if journal is not None:
+                # The profile's last point: the probe home, when R-F went out.
+                journal.record_sample(cast.cast_id, action.depth_m, str(action.last_phase))
                 journal.end_cast(
                     cast.cast_id,
                     outcome=str(action.outcome),

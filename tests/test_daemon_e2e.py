@@ -82,6 +82,15 @@ async def test_a_whole_cast(make_daemon: MakeDaemon) -> None:
     daemon.send_signal(signal.SIGTERM)
     assert await daemon.wait_exit() == 0
     assert cast_rows(daemon) == [(1, "completed")]
+    # The journal holds the whole profile: what went over the link, plus the
+    # probe at the surface when R-O and R-F went out.
+    with sqlite3.connect(daemon.db) as db:
+        samples = db.execute(
+            "SELECT depth_m, phase FROM samples WHERE cast_id = 1 ORDER BY id"
+        ).fetchall()
+    assert [round(d * 1000) for d, _ in samples[1:-1]] == depths
+    assert samples[0] == (0.0, "descending")
+    assert samples[-1] == (0.0, "ascending")
 
 
 async def test_the_bottom_limits_the_cast(make_daemon: MakeDaemon) -> None:

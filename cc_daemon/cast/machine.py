@@ -58,6 +58,7 @@ class SendFinished:
     depth_m: float
     outcome: Outcome
     reason: str | None
+    last_phase: Phase  # the phase that brought the probe home (its last sample's)
 
 
 @dataclass(frozen=True, slots=True)
@@ -282,6 +283,7 @@ class CastMachine:
         if not status.at_home:  # the rule the autopilot's safety rests on
             raise TransitionError("refusing to finish a cast while the probe is not home")
         out.append(StopWinch("probe home"))
+        last_phase = self.phase
         self._enter(out, Phase.FINISHED, self.abort_reason)
         self._legs = []
-        out.append(SendFinished(status.depth_m, self.outcome, self.abort_reason))
+        out.append(SendFinished(status.depth_m, self.outcome, self.abort_reason, last_phase))
