@@ -171,9 +171,9 @@ def plot_survey(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], path: P
     first = min([f.wall_s for f in fixes] + [c.start_wall_s for c in casts])
     ax.set_title(f"Survey from {_when(first)}\n{len(fixes)} fixes, {len(casts)} casts")
     ax.grid(True, alpha=0.3)
-    # Below the axis label, not on it; "tight" keeps it inside the image.
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncols=2, fontsize="small")
-    fig.savefig(path, dpi=DPI, format="png", bbox_inches="tight")
+    # Below the axis label, not on it: constrained layout makes room for it.
+    fig.legend(loc="outside lower center", ncols=2, fontsize="small")
+    fig.savefig(path, dpi=DPI, format="png")
 
 
 def _when(wall_s: float) -> str:
