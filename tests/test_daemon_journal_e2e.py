@@ -1,0 +1,98 @@
+"""The daemon subprocess and its journal: killed mid-cast, and a store it cannot write.
+
+The journal's own tests drive `Journal` directly; these check the promises
+through the real daemon: what went over the link is in the file, a SIGKILL
+loses nothing older than a second, and a store the daemon cannot write never
+stops a cast or a reply.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import sqlite3
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from cc_daemon.protocol import Ack, DepthReport, Finished, ProbePosition, ProbePositionRequest
+from tests.daemonkit import DaemonProcess, station
+from tests.test_journal_faults import read_only
+
+pytestmark = pytest.mark.slow
+MakeDaemon = Callable[..., DaemonProcess]
+
+
+async def test_sigkill_mid_cast_keeps_every_sample_older_than_a_second(
+    make_daemon: MakeDaemon,
+) -> None:
+    daemon = make_daemon({"cast": {"target_depth_m": 8.0}})  # 8 s down at 1 m/s
+    port = await daemon.start_and_connect()
+    await port.send(station())
+    await daemon.expect(Ack, 2)
+    frames = await daemon.collect(4.6)
+    assert daemon.proc is not None
+    killed_at = time.monotonic()
+    daemon.proc.kill()
+    daemon.proc.wait(5)
+    reports = [(r.time, r.message.depth_mm) for r in frames if isinstance(r.message, DepthReport)]
+    older = [depth for at, depth in reports if at < killed_at - 1.0]
+    assert len(older) >= 3
+    with sqlite3.connect(daemon.db) as db:
+        stored = {round(d * 1000) for (d,) in db.execute("SELECT depth_m FROM samples")}
+        (outcome,) = db.execute("SELECT outcome FROM casts WHERE id = 1").fetchone()
+    assert set(older) <= stored
+    assert outcome is None  # nobody got to end it
+
+    # The next start marks it unfinished, says so, and serves as usual.
+    daemon.start()
+    await daemon.wait_answering()
+    daemon.send_signal(signal.SIGTERM)
+    assert await daemon.wait_exit() == 0
+    with sqlite3.connect(daemon.db) as db:
+        assert db.execute("SELECT outcome FROM casts WHERE id = 1").fetchone() == ("unfinished",)
+    warned = [e for e in daemon.log_events() if e.get("level") == "warning"]
+    assert any("unfinished" in str(e.get("event")) for e in warned)
+
+
+async def test_a_read_only_store_stops_neither_casts_nor_replies(
+    make_daemon: MakeDaemon, tmp_path: Path
+) -> None:
+    store = tmp_path / "store"
+    store.mkdir()
+    journal = store / "journal.db"
+    daemon = make_daemon({"store": {"path": str(journal)}})
+    with read_only(store) as make_writable:
+        port = await daemon.start_and_connect()
+        await port.send(station())
+        await daemon.expect(Ack, 2)
+        await asyncio.sleep(1.5)
+        asked = time.monotonic()
+        await port.send(ProbePositionRequest(3))
+        reply = await daemon.expect(ProbePosition, 1)
+        assert reply is not None and reply.time - asked < 0.5
+        assert reply.message.depth_mm > 0
+        assert await daemon.expect(Finished, 15) is not None  # the cast ran to the end
+        assert not journal.exists()  # nothing could be written
+        make_writable()
+    # The journal kept the rows and writes them once it can.
+    deadline = time.monotonic() + 10
+    rows: list[tuple[object, ...]] = []
+    while time.monotonic() < deadline:
+        if journal.exists():
+            try:
+                with sqlite3.connect(journal) as db:
+                    rows = db.execute(
+                        "SELECT c.outcome, COUNT(s.id) FROM casts c JOIN samples s "
+                        "ON s.cast_id = c.id GROUP BY c.id"
+                    ).fetchall()
+            except sqlite3.OperationalError:
+                rows = []
+            if rows:
+                break
+        await asyncio.sleep(0.2)
+    assert rows and rows[0][0] == "completed" and int(rows[0][1]) >= 8  # type: ignore[call-overload]
+    daemon.send_signal(signal.SIGTERM)
+    assert await daemon.wait_exit() == 0
