@@ -84,8 +84,8 @@ def make_winch(settings: Settings, clock: Clock) -> Winch:
         )
         return SimulatedWinch(physics, clock)
     raise ConfigError(
-        f"winch.backend = {winch.backend!r}: the GPIO backend is not part of this build; "
-        "allowed: 'sim'"
+        f"cc-daemon: bad configuration: winch.backend = {winch.backend!r}: the GPIO backend "
+        "is not part of this build yet; allowed: 'sim'"
     )
 
 

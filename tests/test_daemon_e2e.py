@@ -275,3 +275,13 @@ async def test_a_stranded_probe_is_reported_loudly_and_never_finished(
     assert await daemon.expect(Finished, 0.3, fail=False) is None
     assert any("NOT home" in str(e.get("event")) for e in daemon.log_events())
     assert cast_rows(daemon) == [(1, "unfinished")]
+
+
+async def test_the_gpio_backend_is_refused_before_anything_is_opened(
+    make_daemon: MakeDaemon,
+) -> None:
+    daemon = make_daemon({"winch": {"backend": "gpio"}})
+    daemon.start()
+    assert await daemon.wait_exit(10) == 2
+    assert "cc-daemon: bad configuration: winch.backend = 'gpio'" in daemon.log_text()
+    assert not daemon.db.exists()
