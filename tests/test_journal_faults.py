@@ -2,7 +2,8 @@
 
 Each test makes a real condition on a real file: a read-only file, a
 read-only directory, a full database, a file from a newer cc-daemon, a file
-that is not a journal. As root, permission bits do not stop writes, so the
+that is not a journal (those two are left untouched and the rows go to a new
+file beside them). As root, permission bits do not stop writes, so the
 read-only cases also set the immutable attribute (`chattr +i`), which does;
 where neither works, the test is skipped rather than passed.
 
@@ -19,6 +20,7 @@ import shutil
 import sqlite3
 import stat
 import subprocess
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -176,7 +178,11 @@ def test_a_full_store_keeps_rows_in_memory_until_there_is_room(tmp_path: Path) -
         health = journal.health()
         assert "database or disk is full" in (health.last_error or "")
         assert not health.writable
-        assert health.pending_rows == 3009
+        # What fitted is in the file, the cast first; only the rest waits.
+        assert health.pending_rows + health.rows_written == 3009
+        assert health.pending_rows > 2500
+        assert query(db, "SELECT count(*) FROM samples") == [(5,)]
+        assert query(db, "SELECT outcome FROM casts") == [("completed",)]
         full = False  # room again: the next reconnect sets no cap
         wait_for(lambda: journal.health().pending_rows == 0)
     finally:
@@ -198,13 +204,45 @@ def test_a_file_from_a_newer_daemon_is_never_touched(tmp_path: Path) -> None:
     journal = Journal(db)
     with capture_logs() as logs:
         assert journal.open() == []
-        journal.record_fix(FIX)
+        cast_id = record_a_cast(journal)
         journal.close()
-    assert "newer cc-daemon" in (journal.health().last_error or "")
-    assert any(
-        e["event"] == "journal closed with rows it could not write; they are lost" for e in logs
-    )
+    health = journal.health()
+    assert "newer cc-daemon" in (health.last_error or "")
     assert db.read_bytes() == before
+    # The run is kept in a new file beside it, which the log names.
+    assert health.path.parent == tmp_path
+    assert health.path.name.startswith("j-")
+    critical = [e for e in logs if e["log_level"] == "critical"]
+    assert [e["path"] for e in critical] == [str(db), str(health.path)]
+    assert query(health.path, "SELECT id, outcome FROM casts") == [(cast_id, "completed")]
+    assert query(health.path, "SELECT count(*) FROM samples") == [(5,)]
+    assert query(health.path, "SELECT count(*) FROM fixes") == [(1,)]
+
+
+def test_an_unusable_file_in_a_read_only_directory_is_replaced_in_the_temporary_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    state = tmp_path / "state"
+    state.mkdir()
+    db = state / "j.db"
+    db.write_bytes(b"not a database" * 500)
+    before = db.read_bytes()
+    with read_only(state):
+        journal = Journal(db)
+        try:
+            journal.open()
+            cast_id = record_a_cast(journal)
+            wait_for(lambda: journal.health().pending_rows == 0)
+            health = journal.health()
+        finally:
+            journal.close()
+    assert db.read_bytes() == before
+    assert health.path.parent == temp
+    assert query(health.path, "SELECT id FROM casts") == [(cast_id,)]
+    assert query(health.path, "SELECT count(*) FROM samples") == [(5,)]
 
 
 @pytest.mark.parametrize("kind", ["garbage", "other sqlite"])
@@ -221,9 +259,12 @@ def test_a_file_that_is_not_a_journal_is_never_touched(tmp_path: Path, kind: str
     journal.open()
     journal.record_fix(FIX)
     journal.close()
-    assert not journal.health().writable
-    assert journal.health().write_errors >= 1
+    health = journal.health()
+    assert health.write_errors >= 1
     assert db.read_bytes() == before
+    assert health.path != db
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["j.db", health.path.name])
+    assert query(health.path, "SELECT count(*) FROM fixes") == [(1,)]
 
 
 def test_repeated_errors_are_rate_limited_never_silenced(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -8,6 +8,12 @@ work at once) and never marks a running cast `unfinished` (only the daemon's
 `Journal.open()` may decide that a cast was left by a crash). A file from an
 older cc-daemon is migrated in a private in-memory copy, never in place.
 
+A WAL reader needs the `-shm` file beside the journal, which it must create if
+the daemon is not running; a user who may read the file but not write its
+directory (the daemon's state directory, say) cannot. Then the reader opens
+the file `immutable` if it has no write-ahead log (the daemon stopped cleanly),
+or else reads a private copy of the file and its log in a temporary directory.
+
 All the reads of one `JournalReader` see one snapshot of the file, so a cast
 and its samples agree even while the daemon is writing.
 """
@@ -15,13 +21,23 @@ and its samples agree even while the daemon is writing.
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import sqlite3
+import tempfile
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, NamedTuple
 
 from cc_daemon.store import schema
 from cc_daemon.store.schema import StoreError
+
+# SQLite's primary result codes for "may not write here" and "cannot open".
+_SQLITE_READONLY = 8
+_SQLITE_CANTOPEN = 14
+# Copying a file the daemon checkpoints at that moment can give a mismatched
+# pair (file, log): copy again, this many times at most.
+_COPY_ATTEMPTS = 5
 
 
 class CastRecord(NamedTuple):
@@ -164,12 +180,30 @@ class JournalReader:
         self.path = Path(path)
         if not self.path.is_file():
             raise StoreError(f"no journal at {self.path}")
+        self._private: tempfile.TemporaryDirectory[str] | None = None
+        uri = self.path.resolve().as_uri()
         try:
-            conn = sqlite3.connect(
-                f"{self.path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None
-            )
+            try:
+                conn = self._snapshot(f"{uri}?mode=ro")
+            except sqlite3.OperationalError as exc:
+                code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
+                if code not in (_SQLITE_READONLY, _SQLITE_CANTOPEN):
+                    raise
+                conn = self._snapshot_without_writing_beside()
+        except StoreError as exc:
+            self._drop_private()
+            raise StoreError(f"{self.path}: {exc}") from exc
         except sqlite3.Error as exc:
-            raise StoreError(f"cannot open {self.path}: {exc}") from exc
+            self._drop_private()
+            raise StoreError(f"cannot read {self.path}: {exc}") from exc
+        except OSError as exc:
+            self._drop_private()
+            raise StoreError(f"cannot read {self.path}: {exc}") from exc
+        self._conn = conn
+
+    def _snapshot(self, uri: str) -> sqlite3.Connection:
+        """Open `uri` and begin the one read transaction of the reader's life."""
+        conn = sqlite3.connect(uri, uri=True, isolation_level=None)
         try:
             version = schema.file_version(conn)
             if version < schema.SCHEMA_VERSION:
@@ -177,13 +211,39 @@ class JournalReader:
             # One read transaction for the reader's life: one snapshot.
             conn.execute("BEGIN")
             conn.execute("SELECT count(*) FROM casts").fetchone()
-        except StoreError as exc:
+        except BaseException:
             conn.close()
-            raise StoreError(f"{self.path}: {exc}") from exc
-        except sqlite3.Error as exc:
-            conn.close()
-            raise StoreError(f"cannot read {self.path}: {exc}") from exc
-        self._conn = conn
+            raise
+        return conn
+
+    def _snapshot_without_writing_beside(self) -> sqlite3.Connection:
+        """Read a file whose directory we may not write (so no `-shm` can be made)."""
+        wal = Path(f"{self.path}-wal")
+        if not wal.exists() or wal.stat().st_size == 0:
+            # No log: the file alone is the journal, and nothing is writing it.
+            return self._snapshot(f"{self.path.resolve().as_uri()}?immutable=1")
+        self._private = tempfile.TemporaryDirectory(prefix="cc-daemon-read-")
+        copy = Path(self._private.name) / self.path.name
+        for _ in range(_COPY_ATTEMPTS):
+            before = self._signature(wal)
+            shutil.copyfile(self.path, copy)
+            shutil.copyfile(wal, f"{copy}-wal")
+            if self._signature(wal) == before:
+                break
+        # The copy is ours: SQLite may build its -shm beside it and replay the log.
+        return self._snapshot(f"{copy.as_uri()}?mode=ro")
+
+    def _signature(self, wal: Path) -> tuple[int, int, bytes]:
+        """What changes when the daemon checkpoints: the file, and the log's salt."""
+        stat = os.stat(self.path)
+        with wal.open("rb") as log:
+            header = log.read(32)
+        return stat.st_size, stat.st_mtime_ns, header
+
+    def _drop_private(self) -> None:
+        private, self._private = self._private, None
+        if private is not None:
+            private.cleanup()
 
     @staticmethod
     def _migrated_copy(conn: sqlite3.Connection) -> sqlite3.Connection:
@@ -200,6 +260,7 @@ class JournalReader:
 
     def close(self) -> None:
         self._conn.close()
+        self._drop_private()
 
     def __enter__(self) -> JournalReader:
         return self

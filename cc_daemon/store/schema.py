@@ -115,6 +115,14 @@ class StoreError(CcDaemonError):
     """The journal file cannot be used: missing, not a journal, or from a newer cc-daemon."""
 
 
+class IncompatibleFileError(StoreError):
+    """The file is another program's, or a newer cc-daemon's: this one must never write it.
+
+    Unlike a full disk or a read-only file, waiting does not help; the daemon's
+    `Journal` leaves such a file as it is and starts a fresh one beside it.
+    """
+
+
 def file_version(conn: sqlite3.Connection) -> int:
     """The schema version of the open file, after checking that it is a journal (or empty)."""
     app_id = conn.execute("PRAGMA application_id").fetchone()[0]
@@ -122,9 +130,9 @@ def file_version(conn: sqlite3.Connection) -> int:
     if app_id != APPLICATION_ID:
         has_tables = conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0] > 0
         if app_id != 0 or has_tables or version != 0:
-            raise StoreError("not a cc-daemon journal (another program's SQLite file)")
+            raise IncompatibleFileError("not a cc-daemon journal (another program's SQLite file)")
     if version > SCHEMA_VERSION:
-        raise StoreError(
+        raise IncompatibleFileError(
             f"written by a newer cc-daemon (schema version {version}; "
             f"this one knows up to {SCHEMA_VERSION})"
         )
