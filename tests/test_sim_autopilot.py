@@ -186,6 +186,18 @@ def test_flags_a_gap_of_more_than_three_seconds_and_retries_m() -> None:
     assert len(ap.violations) == 1  # flagged once per gap
 
 
+def test_a_retry_answered_by_r_o_alone_keeps_resending_m_until_r_f() -> None:
+    """A finished cast answers M with R-O then R-F: if that R-F is lost, M again."""
+    ap, t = _at_cast()
+    ap.on_frame(t + 1, DepthReport(0, 0))  # the last report; its R-F will be lost
+    ap.poll(t + 4.1)  # the gap: M from now on
+    ap.on_frame(t + 4.2, Ack(0))  # the R-O to a resent M; the R-F behind it is lost
+    later = _frames(ap, t + 5, 3)
+    assert any(isinstance(f, StartMeasuring) for f in later)
+    ap.on_frame(t + 8.2, Finished(0, 0))
+    assert ap.phase is Phase.CRUISING
+
+
 def test_a_steady_report_stream_is_not_a_gap() -> None:
     ap, t = _at_cast()
     for i in range(30):
@@ -196,17 +208,66 @@ def test_a_steady_report_stream_is_not_a_gap() -> None:
     assert ap.violations == []
 
 
-def test_flags_corrupt_frames_unless_noise_was_injected() -> None:
+def test_flags_corrupt_frames_unless_a_bit_was_flipped_on_the_way() -> None:
     error = CorruptFrame(ErrorKind.BAD_CHECKSUM, bytes.fromhex("524d00483dcc01f1"), "checksum")
     ap, t = _at_cast()
     ap.on_corrupt(t, error)
     assert [v.kind for v in ap.problems] == [ViolationKind.CORRUPT_FRAME]
     assert "52 4D 00 48 3D CC 01 F1" in ap.violations[0].detail
 
-    noisy, t = _at_cast(AutopilotConfig(boat_speed_m_s=100.0, noise_inbound=True))
-    noisy.on_corrupt(t, error)
+    noisy, t = _at_cast()
+    noisy.bits_flipped(t + 0.5, inbound=True)
+    noisy.on_corrupt(t + 0.5, error)
     assert noisy.problems == []
     assert noisy.violations[0].excused_by == "bits flipped on the daemon's frames"
+    # A flip on our own frames cannot spoil the daemon's.
+    noisy.on_frame(t + 1.0, DepthReport(0, 300))
+    noisy.bits_flipped(t + 5.0, inbound=False)
+    noisy.on_corrupt(t + 5.0, error)
+    assert [v.kind for v in noisy.problems] == [ViolationKind.CORRUPT_FRAME]
+
+
+def test_a_corrupt_frame_is_excused_by_a_flip_since_the_last_thing_heard() -> None:
+    error = CorruptFrame(ErrorKind.BAD_CHECKSUM, bytes.fromhex("524f004800ea"), "checksum")
+    ap, t = _at_cast()
+    ap.bits_flipped(t + 1.0, inbound=True)
+    ap.on_frame(t + 4.0, DepthReport(0, 300))
+    ap.on_corrupt(t + 7.0, error)  # the flip was before the last good frame: not this one
+    assert [v.kind for v in ap.problems] == [ViolationKind.CORRUPT_FRAME]
+    # A mangled frame is reported when the bytes after it arrive, maybe much later.
+    ap.bits_flipped(t + 8.0, inbound=True)
+    ap.on_corrupt(t + 15.0, error)
+    assert ap.violations[-1].excused_by == "bits flipped on the daemon's frames"
+
+
+def test_noise_far_from_a_silent_daemon_does_not_excuse_it() -> None:
+    """Injected noise excuses only what it could have caused: the violations near a flip."""
+    ap = Autopilot(_mission(), FAST)
+    t = _run_until(ap, Phase.REQUESTING)
+    ap.bits_flipped(t + 0.5, inbound=False)  # the one M it mangled
+    for i in range(1, 61):  # a minute of M, and not a word from the daemon
+        ap.poll(t + i)
+    no_ack = [v for v in ap.violations if v.kind is ViolationKind.NO_ACK]
+    assert len(no_ack) >= 20
+    assert no_ack[0].excused_by == "bits flipped on our frames"
+    assert all(not v.excused for v in no_ack[1:])
+    assert len(ap.problems) == len(no_ack) - 1
+
+
+def test_noise_excuses_a_lost_answer_and_a_report_gap_around_it() -> None:
+    ap, t = _at_cast()
+    ap.on_frame(t + 0.5, DepthReport(0, 300))
+    ap.bits_flipped(t + 1.5, inbound=True)  # the reports stop: their bytes were mangled
+    for i in range(1, 6):
+        ap.poll(t + i)
+    gap = [v for v in ap.violations if v.kind is ViolationKind.REPORT_GAP]
+    assert len(gap) == 1
+    assert gap[0].excused_by == "bits flipped on the daemon's frames"
+    ap.on_frame(t + 6.5, DepthReport(0, 300))
+    for i in range(7, 12):
+        ap.poll(t + i)  # silence again, and no flip since 1.5 s
+    gap = [v for v in ap.violations if v.kind is ViolationKind.REPORT_GAP]
+    assert [v.excused for v in gap] == [True, False]
 
 
 def test_flags_s_not_answered_within_a_second() -> None:
@@ -386,3 +447,7 @@ def test_bad_configuration_is_refused() -> None:
         AutopilotConfig(boat_speed_m_s=-1)
     with pytest.raises(ValueError, match="query_every"):
         AutopilotConfig(query_every=1)
+    with pytest.raises(ValueError, match="noise_margin_s"):
+        AutopilotConfig(noise_margin_s=-1)
+    with pytest.raises(ValueError, match="outage_grace_s"):
+        AutopilotConfig(outage_grace_s=-1)

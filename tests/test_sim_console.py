@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import os
 from pathlib import Path
 
 from cc_daemon.protocol import (
@@ -216,9 +217,69 @@ def test_the_summary_lists_problems_and_groups_excused_ones() -> None:
 
 def test_print_summary_writes_table_and_totals() -> None:
     console, out = _plain()
-    console.print_summary(_summary(interrupted=True, notes=["a note"]))
+    console.print_summary(
+        _summary(interrupted=True, notes=["a note"], daemon_exit=0, probe_depth_m=0.0)
+    )
     text = out.getvalue()
     assert "Survey summary" in text
     assert "skipped: too shallow" in text
     assert "a note" in text
     assert "interrupted: the daemon brought the probe home before stopping" in text
+
+
+def _ending(**changes: object) -> list[str]:
+    lines = summary_lines(_summary(**changes))
+    return [x for x in lines if x.startswith(("interrupted", "stopped at once"))]
+
+
+def test_the_summary_says_how_the_run_ended_for_the_probe_and_only_what_it_knows() -> None:
+    assert _ending(daemon_exit=0, probe_depth_m=0.0) == []
+    assert _ending(interrupted=True, daemon_exit=0, probe_depth_m=0.0) == [
+        "interrupted: the daemon brought the probe home before stopping"
+    ]
+    # Two Ctrl-C: the daemon stopped the winch where it was.
+    assert _ending(interrupted=True, daemon_exit=130, probe_depth_m=2.78) == [
+        "stopped at once: the probe may be down at 2.78 m"
+    ]
+    # Not interrupted, but the daemon still had to be stopped at once (a jammed winch).
+    assert _ending(daemon_exit=130, probe_depth_m=0.5) == [
+        "stopped at once: the probe may be down at 0.50 m"
+    ]
+    assert _ending(interrupted=True, daemon_exit=0, probe_depth_m=1.2) == [
+        "interrupted: the daemon stopped with the probe at 1.20 m"
+    ]
+    # simulate-autopilot: the daemon is on the other end of a cable.
+    remote = _ending(interrupted=True, remote=True, probe_depth_m=1.5)
+    assert remote == [
+        "interrupted: the simulated autopilot stopped; the daemon on the other end carries "
+        "on as it sees fit; it last reported the probe at 1.50 m"
+    ]
+    assert "home" not in remote[0]
+
+
+def test_a_closed_pipe_stops_the_output_not_the_caller() -> None:
+    """`cc-daemon --simulate | head`: rich would raise SystemExit(1) mid-run."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader left
+    with os.fdopen(write_end, "w", encoding="utf-8") as out:
+        console = SimConsole(out, live=False)
+        assert console.output_lost is None
+        console.start(make_mission(3, 1), "cc-daemon --simulate: test")
+        assert isinstance(console.output_lost, BrokenPipeError)
+        console.event(1.0, "more")
+        console.frame_in(4.0, DepthReport(4, 1000))
+        console.print_summary(_summary())
+        console.stop()
+        # The descriptor now leads to /dev/null: closing (flushing) the stream succeeds.
+
+
+def test_the_live_view_survives_a_terminal_that_went_away() -> None:
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    with os.fdopen(write_end, "w", encoding="utf-8") as out:
+        console = SimConsole(out, live=True)
+        console.start(make_mission(3, 1), "x")
+        console.event(1.0, "an event")
+        console.stop()
+        console.print_summary(_summary())
+        assert console.output_lost is not None

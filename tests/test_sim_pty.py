@@ -23,6 +23,7 @@ from cc_daemon.protocol import (
     Telemetry,
     encode,
 )
+from cc_daemon.sim.noise import BitFlipper
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
 
@@ -203,6 +204,28 @@ async def test_frameport_reports_corrupt_frames_and_keeps_going(pair: PtyPair) -
         assert got is not None
         assert got.message == Finished(73, 0)
         assert [e.kind for e in autopilot.errors] == [ErrorKind.BAD_CHECKSUM]
+    finally:
+        await autopilot.close()
+        os.close(slave)
+
+
+async def test_corrupt_frames_are_timed_no_earlier_than_the_flips_that_spoilt_them(
+    pair: PtyPair,
+) -> None:
+    flipper = BitFlipper(1.0, seed=1)  # a bit in bytes 0, 25, 50...
+    slave = _open_slave(pair.path)
+    autopilot = await FramePort.over_fd(pair.master_fd, rx_filter=flipper)
+    try:
+        before = time.monotonic()
+        # Line noise in bytes 0 and 50, the R-M's type byte at 25: it is spoilt.
+        stream = bytes(24) + encode(DepthReport(72, 15820)) + bytes(19) + encode(Finished(73, 0))
+        os.write(slave, stream)
+        got = await autopilot.receive(2.0)
+        assert got is not None
+        assert got.message == Finished(73, 0)
+        assert flipper.bits_flipped == 3
+        assert len(autopilot.errors) == len(autopilot.error_times) == 1
+        assert before <= flipper.flip_times[1] <= autopilot.error_times[0] <= got.time
     finally:
         await autopilot.close()
         os.close(slave)

@@ -6,8 +6,11 @@ import argparse
 import asyncio
 import contextlib
 import io
+import json
 import os
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -15,21 +18,34 @@ import pytest
 
 from cc_daemon.config import Settings
 from cc_daemon.service import Daemon
+from cc_daemon.sim import mission as mission_module
+from cc_daemon.sim.autopilot import Autopilot
+from cc_daemon.sim.console import SimConsole
+from cc_daemon.sim.mission import make_mission
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.runner import (
+    EXIT_USAGE,
     FAST,
+    REALTIME,
     AutopilotOnlyOptions,
+    LogTap,
     Pace,
     SimOptions,
+    _Run,
     add_commands,
     add_simulate_arguments,
+    autopilot_config,
+    build_summary,
     daemon_settings,
     options_from_args,
     plan_is_predictable,
     run_autopilot,
+    run_from_args,
     run_simulation,
 )
 from cc_daemon.store import JournalReader
+
+REPO = Path(__file__).resolve().parent.parent
 
 # Faster than the demo, for the tests that are about behaviour, not looks.
 QUICK = Pace(
@@ -75,6 +91,18 @@ def _row(text: str, station: str) -> str:
     )
 
 
+def _reached(row: str) -> float:
+    """The "reached" column of a summary row (station, lat N, lon W, water, planned, reached)."""
+    cells = row.split()
+    assert cells[10] == "m", row
+    return float(cells[9])
+
+
+def test_the_demo_sends_one_frame_a_second_as_the_firmware_does() -> None:
+    assert FAST.frame_period_s == 1.0
+    assert REALTIME.frame_period_s == 1.0
+
+
 async def test_a_two_station_survey_at_demo_pace(tmp_path: Path) -> None:
     code, text, elapsed = await _simulate(tmp_path, stations=2, pace=FAST)
     assert code == 0, text
@@ -106,7 +134,7 @@ async def test_a_winch_stall_aborts_and_the_probe_comes_home_before_r_f(tmp_path
     assert code == 0, text
     row = _row(text, "S1")
     assert "aborted: stall at 1.00 m" in row
-    assert row.split()[9:11] == ["1.00", "m"]  # reached: where it stalled
+    assert _reached(row) == pytest.approx(1.0, abs=0.05)  # where it stalled, not the last R-M
     assert "0 cast(s) completed, 1 aborted, 1 skipped" in text
     outcome, _, reached = _casts(tmp_path)[0]
     assert outcome == "aborted"
@@ -129,16 +157,30 @@ async def test_a_pulled_cable_mid_cast_is_survived(tmp_path: Path) -> None:
     assert "cable plugged back in" in text
     assert "cable pulled 1 time(s); the daemon lost its port 1 time(s) and reopened it" in text
     assert "the cable was unplugged" in text  # the silence is explained, not a violation
-    assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["completed", "skipped-shallow"]
+    casts = _casts(tmp_path)
+    assert [outcome for outcome, _, _ in casts] == ["completed", "skipped-shallow"]
+    # The reports from the bottom were lost with the cable; the probe went there all the same.
+    journal_reached = casts[0][2]
+    assert journal_reached == pytest.approx(2.0, abs=0.01)
+    assert _reached(_row(text, "S1")) == pytest.approx(journal_reached, abs=0.005)
 
 
-async def test_bit_flips_both_ways_are_counted_and_the_survey_completes(tmp_path: Path) -> None:
-    code, text, _ = await _simulate(tmp_path, stations=2, pace=QUICK, corrupt=0.02, seed=2)
+async def test_bit_flips_both_ways_are_counted_and_each_fault_they_cause_is_excused(
+    tmp_path: Path,
+) -> None:
+    # Heavy noise: a dozen frames to the daemon spoilt in a few seconds, a few back.
+    code, text, _ = await _simulate(tmp_path, stations=2, pace=QUICK, corrupt=0.06, seed=7)
     assert code == 0, text
     line = next(x for x in text.splitlines() if x.startswith("corrupt frames:"))
+    from_daemon = int(line.split(": ")[1].split(" from")[0])
     rejected = int(line.split(", ")[1].split(" rejected")[0])
+    assert from_daemon > 0
     assert rejected > 0
     assert "bits flipped towards the daemon" in line
+    # Every violation was caused by a flip near it; none is left on the daemon's account.
+    assert "protocol violations: 0 (+" in text
+    assert "excused: " in text
+    assert "corrupt frame (bits flipped on the daemon's frames)" in text
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["completed", "skipped-shallow"]
 
 
@@ -168,8 +210,40 @@ async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
     assert "aborted: shutdown" in _row(text, "S1")
     assert "not reached" in _row(text, "S2")
     assert "interrupted: the daemon brought the probe home before stopping" in text
+    assert "probe may be down" not in text
     assert "← R-F" in text
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["aborted"]
+
+
+async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_be_down(
+    tmp_path: Path,
+) -> None:
+    slow_winch = Pace("quick", 0.25, 300.0, 0.4, cast={"bottom_dwell_s": 5.0})
+    loop = asyncio.get_running_loop()
+    timers = [loop.call_later(t, os.kill, os.getpid(), signal.SIGINT) for t in (2.5, 3.0)]
+    try:
+        out = io.StringIO()
+        code = await run_simulation(
+            SimOptions(
+                stations=2,
+                pace=slow_winch,
+                db=tmp_path / "survey.db",
+                live=False,
+                out=out,
+                handle_signals=True,
+            )
+        )
+    finally:
+        for timer in timers:
+            timer.cancel()
+    text = out.getvalue()
+    assert code == 130, text
+    assert "second Ctrl-C: the daemon stops at once" in text
+    assert "brought the probe home" not in text
+    line = next(x for x in text.splitlines() if x.startswith("stopped at once"))
+    depth = float(line.removeprefix("stopped at once: the probe may be down at ").split()[0])
+    assert depth > 0.1
+    assert "SURVEY FAILED (exit status 130)" in text
 
 
 async def test_a_probe_that_cannot_come_home_gets_no_r_f_and_fails_the_run(
@@ -189,6 +263,8 @@ async def test_a_probe_that_cannot_come_home_gets_no_r_f_and_fails_the_run(
     assert "not reached" in _row(text, "S2")
     assert "giving up on the station with the probe last reported at 0.50 m" in text
     assert "← R-F" not in text  # never told to leave with the probe down
+    assert "stopped at once: the probe may be down at 0.50 m" in text
+    assert "interrupted" not in text
     assert "SURVEY FAILED (exit status 130)" in text
 
 
@@ -304,3 +380,186 @@ async def test_simulate_autopilot_on_a_serial_port_against_a_daemon(tmp_path: Pa
     assert "skipped: too shallow" in _row(text, "S2")
     assert "data stored" not in text  # the journal is on the other machine
     assert daemon.snapshot().casts_completed == 1
+
+
+# ---------------------------------------------------------------- the summary, without a run
+
+
+def _one_cast_run(*, drop_at: float | None = None) -> _Run:
+    """A run whose autopilot saw S1 cast (deepest R-M 0.75 m, then R-F) and nothing else."""
+    from cc_daemon.protocol import Ack, DepthReport, Finished
+    from cc_daemon.sim.autopilot import AutopilotConfig, Phase
+
+    mission = make_mission(2, 1)
+    autopilot = Autopilot(mission, AutopilotConfig(boat_speed_m_s=300.0))
+    now = 0.0
+    while autopilot.phase is not Phase.REQUESTING:
+        autopilot.poll(now)
+        now += 0.5
+    autopilot.on_frame(now, Ack(0))
+    autopilot.on_frame(now + 0.5, DepthReport(0, 750))
+    autopilot.on_frame(now + 1.5, Finished(0, 0))
+    return _Run(mission, autopilot, SimConsole(io.StringIO(), live=False), drop_at=drop_at)
+
+
+def test_reached_is_the_journals_depth_not_the_deepest_report_that_arrived() -> None:
+    from cc_daemon.sim.runner import JournalCast
+
+    run = _one_cast_run()
+    stalled = JournalCast(1, 2.69, 1.0, "aborted", "winch fault: stall at 1.00 m")
+    summary = build_summary(run, casts=[stalled], daemon_exit=0, db_path=None, log_path=None)
+    s1 = summary.stations[0]
+    assert s1.reached_depth_m == 1.0
+    assert s1.verdict == "aborted: stall at 1.00 m"
+    assert (
+        "S1: the journal says the probe reached 1.00 m; the deepest R-M that arrived said 0.75 m"
+        in summary.notes
+    )
+    # Without a journal record (simulate-autopilot), what the autopilot heard.
+    remote = build_summary(run, casts=None, daemon_exit=None, db_path=None, log_path=None)
+    assert remote.stations[0].reached_depth_m == 0.75
+    assert remote.notes == []
+    assert remote.stations[1].reached_depth_m is None  # not reached
+
+
+def test_a_drop_link_at_beyond_the_end_of_the_run_is_reported() -> None:
+    run = _one_cast_run(drop_at=500.0)
+    summary = build_summary(run, casts=None, daemon_exit=0, db_path=None, log_path=None)
+    [note] = [n for n in summary.notes if n.startswith("cable never pulled")]
+    assert note.startswith("cable never pulled: the run ended at ")
+    assert note.endswith(" s, before --drop-link-at 500")
+    assert build_summary(_one_cast_run(), casts=None, daemon_exit=0, db_path=None, log_path=None)
+
+
+def test_the_reconnect_grace_follows_the_daemons_backoff(tmp_path: Path) -> None:
+    base = Settings.model_validate({"serial": {"reconnect_max_s": 9.0}})
+    options = SimOptions(db=tmp_path / "s.db", settings=base)
+    settings = daemon_settings(options, tmp_path / "tty")
+    assert autopilot_config(options, settings).outage_grace_s == 10.0
+    default = daemon_settings(SimOptions(db=tmp_path / "s.db"), tmp_path / "tty")
+    assert autopilot_config(options, default).outage_grace_s == 6.0
+
+
+def _simulate_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--db", type=Path)
+    add_simulate_arguments(parser)
+    return parser
+
+
+def test_drop_link_for_zero_is_refused_not_turned_into_three_seconds(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit):
+        _simulate_parser().parse_args(["--drop-link-at", "5", "--drop-link-for", "0"])
+    assert "--drop-link-for" in capsys.readouterr().err
+    args = _simulate_parser().parse_args(["--drop-link-at", "5", "--drop-link-for", "0.5"])
+    assert options_from_args(args, None).drop_link_for == 0.5
+    args.drop_link_for = 0.0  # however it got there
+    with pytest.raises(ValueError, match="--drop-link-for 0"):
+        options_from_args(args, None)
+
+
+def test_a_mission_that_cannot_be_laid_out_is_a_usage_error(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(mission_module, "_MIN_SPACING_M", 10_000.0)  # nowhere is far enough
+    with pytest.raises(ValueError, match="station 2 cannot be placed"):
+        make_mission(3, 1)
+    args = _simulate_parser().parse_args(["--stations", "3", "--db", str(tmp_path / "s.db")])
+    args.realtime = False
+    assert run_from_args(args) == EXIT_USAGE
+    assert "cc-daemon --simulate: stations=3, seed=1: station 2 cannot be placed" in (
+        capsys.readouterr().err
+    )
+    assert not (tmp_path / "s.db").exists()
+
+
+# ---------------------------------------------------------------- the daemon's log
+
+
+def test_the_log_tap_never_raises_into_the_daemon_and_queues_events(tmp_path: Path) -> None:
+    clock = iter([1.0, 2.0])
+    with (tmp_path / "log").open("w", encoding="utf-8") as file:
+        tap = LogTap(file, lambda: next(clock))
+        tap.write(json.dumps({"level": "info", "event": "cast started", "cast_id": 1}) + "\n")
+        tap.write('{"level": "debug", "event": "frame"}\n{"level": "warn')  # debug: file only
+        tap.write('ing", "event": "corrupt frames received"}\nnot json\n')
+    tap.write('{"level": "error", "event": "after the file closed"}\n')  # no raise
+    tap.flush()
+    assert tap.write_errors == 2
+    events = tap.drain()
+    assert [(at, e["event"]) for at, e in events] == [
+        (1.0, "cast started"),
+        (2.0, "corrupt frames received"),
+    ]
+    assert tap.drain() == []
+    assert LogTap.describe(events[0][1]) == "daemon: cast started  cast_id=1"
+    lines = (tmp_path / "log").read_text().splitlines()
+    assert len(lines) == 4
+
+
+def test_the_log_tap_has_no_finaliser_to_trip_over_a_closed_file(tmp_path: Path) -> None:
+    """Under `python -X dev`, an io stream's finaliser flushing a closed file is reported."""
+    script = (
+        "import gc, sys\n"
+        "from cc_daemon.sim.runner import LogTap\n"
+        f"file = open({str(tmp_path / 'log')!r}, 'w')\n"
+        "tap = LogTap(file, lambda: 0.0)\n"
+        "tap.write('{}\\n')\n"
+        "file.close()\n"
+        "del tap\n"
+        "gc.collect()\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-X", "dev", "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=REPO,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stderr == ""
+
+
+# ---------------------------------------------------------------- output cut short
+
+
+def test_a_reader_that_leaves_mid_cast_does_not_strand_the_probe(tmp_path: Path) -> None:
+    """`cc-daemon --simulate | head`: the output stops, the survey does not."""
+    db = tmp_path / "pipe.db"
+    env = {
+        **os.environ,
+        "CC_DAEMON_CAST__TARGET_DEPTH_M": "2.0",  # a short cast
+        "PYTHONDEVMODE": "1",
+    }
+    with subprocess.Popen(
+        [sys.executable, "-m", "cc_daemon", "--simulate", "--stations", "1", "--db", str(db)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=env,
+        cwd=REPO,
+    ) as proc:
+        assert proc.stdout is not None
+        assert proc.stderr is not None
+        try:
+            for raw in proc.stdout:
+                if b"cast started" in raw:
+                    break  # the probe is going down: the reader leaves
+            proc.stdout.close()
+            err = proc.stderr.read().decode()
+            code = proc.wait(timeout=45)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    assert code == 0, err
+    assert "Traceback" not in err
+    assert "Exception ignored" not in err
+    log = db.with_suffix(".log").read_text()
+    assert "probe may be down" not in log
+    assert "cast finished: probe home, R-F sent" in log
+    events = [json.loads(line)["event"] for line in log.splitlines()]
+    assert events[-1] == "cc-daemon stopped"
+    with JournalReader(db) as reader:
+        assert [c.outcome for c in reader.casts()] == ["completed"]

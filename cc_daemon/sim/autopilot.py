@@ -8,7 +8,7 @@ caller: `poll(now)` returns the frames due at `now` (one per frame period),
 from whatever clock the caller likes: tests pass plain numbers.
 
 Behaviour, as the firmware does it:
-- one frame per frame period (a second on the real boat);
+- one frame per frame period (a second, as the firmware; the demo too);
 - cruising: `T` with the position along a straight transit, the altitude and
   the sonar reading;
 - at a station: `M` every frame until `R-O` arrives; then, while the probe is
@@ -23,7 +23,10 @@ during a cast, `R-F` with a non-zero depth, a depth below the bottom or beyond
 the line, no `R-F` within `finish_timeout_s` of arriving, a frame that makes
 no sense in the current state, and (with `check_plan`) a cast at the shoal or
 a refusal at a deep station. Violations that injected link noise or a pulled
-cable can explain are recorded as excused, with the reason.
+cable can explain are recorded as excused, with the reason: noise only when
+the caller reported a flipped bit (`bits_flipped`) inside the window the
+check covers, a pulled cable only while it was out and for the daemon's
+reconnect time after.
 
 It never does I/O, never sleeps, never reads a clock, and never looks inside
 the daemon.
@@ -32,6 +35,7 @@ the daemon.
 from __future__ import annotations
 
 import random
+from bisect import bisect_left
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -113,9 +117,13 @@ class AutopilotConfig:
     max_line_m: float = 20.0
     depth_tolerance_m: float = 0.05
     check_plan: bool = True  # a shoal station must be refused, every other one cast
-    noise_inbound: bool = False  # bits are flipped on frames from the daemon
-    noise_outbound: bool = False  # bits are flipped on our frames
-    outage_grace_s: float = 6.0  # after a replug: the daemon's reopen backoff tops out at 5 s
+    # A flipped bit this long (or a frame period, if longer) before a check's
+    # window opened still explains it: a mangled frame can hold the peer's
+    # parser until the next frame's bytes complete it.
+    noise_margin_s: float = 1.0
+    # After a replug: the daemon's reopen backoff tops out at its
+    # serial.reconnect_max_s (5 s by default), plus a second to answer.
+    outage_grace_s: float = 6.0
     station_grace_s: float = 3.0  # late answers to our last M after leaving are not news
 
     def __post_init__(self) -> None:
@@ -125,6 +133,10 @@ class AutopilotConfig:
             raise ValueError(f"boat_speed_m_s={self.boat_speed_m_s} is invalid: allowed > 0")
         if self.query_every < 2:
             raise ValueError(f"query_every={self.query_every} is invalid: allowed >= 2")
+        if self.noise_margin_s < 0:
+            raise ValueError(f"noise_margin_s={self.noise_margin_s} is invalid: allowed >= 0")
+        if self.outage_grace_s < 0:
+            raise ValueError(f"outage_grace_s={self.outage_grace_s} is invalid: allowed >= 0")
 
 
 @dataclass(slots=True)
@@ -197,6 +209,9 @@ class Autopilot:
         self._left_station_at: float | None = None
         self._position = mission.start
         self._outages: list[_Outage] = []
+        self._flips_in: list[float] = []  # when bits were flipped on the daemon's frames
+        self._flips_out: list[float] = []  # ... and on ours
+        self._last_heard_at = 0.0  # the last frame (good or corrupt) from the daemon
         self.finished = False
 
     # ------------------------------------------------------------ queries
@@ -239,6 +254,13 @@ class Autopilot:
         if self._outages and self._outages[-1].up is None:
             self._outages[-1].up = now
 
+    # ------------------------------------------------------------ injected noise
+
+    def bits_flipped(self, at: float, *, inbound: bool) -> None:
+        """Injected noise flipped a bit at `at`: on a frame from the daemon
+        (`inbound`) or on one of ours. Times must not go backwards."""
+        (self._flips_in if inbound else self._flips_out).append(at)
+
     # ------------------------------------------------------------ driving
 
     def poll(self, now: float) -> list[AutopilotMessage]:
@@ -261,6 +283,7 @@ class Autopilot:
         if self.finished:
             return  # the books are closed: what comes now is a consequence, not news
         self._advance(now)
+        self._last_heard_at = now
         if isinstance(message, Ack):
             self._on_ack(now)
         elif isinstance(message, DepthReport):
@@ -277,8 +300,13 @@ class Autopilot:
     def on_corrupt(self, now: float, error: CorruptFrame) -> None:
         if self.finished:
             return
+        # The frame's bytes arrived after the last thing we heard, and before now.
+        since, self._last_heard_at = self._last_heard_at, now
         self._violation(
-            now, ViolationKind.CORRUPT_FRAME, f"{error.kind}: {error.hex()} ({error.detail})"
+            now,
+            ViolationKind.CORRUPT_FRAME,
+            f"{error.kind}: {error.hex()} ({error.detail})",
+            since=since,
         )
 
     def finish(self, now: float, *, interrupted: bool = False) -> None:
@@ -373,10 +401,11 @@ class Autopilot:
         self._pending_m_since = None
         if self.phase is Phase.REQUESTING:
             self._start_cast(now)
-        elif self.phase is Phase.CASTING:
-            self._retrying = False  # the cast is still running: reports will follow
-        elif not self._just_left(now):
+        elif self.phase is not Phase.CASTING and not self._just_left(now):
             self._violation(now, ViolationKind.UNEXPECTED_FRAME, "R-O with no M outstanding")
+        # While casting, an R-O does not end a retry: M is resent until the
+        # daemon shows progress, an R-M or the R-F a finished cast answers M
+        # with (after its R-O; and that R-F can be lost as well).
 
     def _start_cast(self, now: float) -> None:
         self.phase = Phase.CASTING
@@ -539,8 +568,19 @@ class Autopilot:
                 end = float("inf") if up is None else up + config.outage_grace_s
                 if since <= end and now >= outage.down:
                     return "the cable was unplugged"
-        if config.noise_inbound and kind in _EXPLAINED_BY_INBOUND_LOSS:
+        # A corrupt frame's bytes arrived after whatever came before it: its
+        # window is exact. A missing answer may be the victim of a frame
+        # mangled just before the window opened.
+        margin = max(config.noise_margin_s, config.frame_period_s)
+        start = since if kind is ViolationKind.CORRUPT_FRAME else since - margin
+        if kind in _EXPLAINED_BY_INBOUND_LOSS and _any_between(self._flips_in, start, now):
             return "bits flipped on the daemon's frames"
-        if config.noise_outbound and kind in _EXPLAINED_BY_OUTBOUND_LOSS:
+        if kind in _EXPLAINED_BY_OUTBOUND_LOSS and _any_between(self._flips_out, start, now):
             return "bits flipped on our frames"
         return None
+
+
+def _any_between(times: list[float], start: float, end: float) -> bool:
+    """Whether the sorted `times` hold one in [start, end]."""
+    i = bisect_left(times, start)
+    return i < len(times) and times[i] <= end

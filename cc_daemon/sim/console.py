@@ -8,18 +8,21 @@ end-of-run summary table.
 
 It only renders what it is given (`ViewState`, `Summary`, events and frames
 handed to it); it never talks to the link, the daemon or the clock, and it
-decides nothing about the outcome of the run.
+decides nothing about the outcome of the run. Output that cannot be written
+(a pipe whose reader left, `cc-daemon --simulate | head`; a terminal that
+went away) stops the output, never the run: nothing here raises for it.
 """
 
 from __future__ import annotations
 
 import io
+import os
 import sys
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
+from typing import TextIO, cast
 
 from rich import box
 from rich.console import Console, Group, RenderableType
@@ -31,6 +34,9 @@ from rich.text import Text
 from cc_daemon.protocol import CorruptFrame, Message, as_dict
 from cc_daemon.sim.autopilot import Violation
 from cc_daemon.sim.mission import Mission
+
+EXIT_PROBE_MAY_BE_DOWN = 130  # the daemon's exit status when it had to stop at once
+HOME_M = 0.01  # a probe this close to the surface is home
 
 _RECENT_FRAMES = 4
 _RECENT_EVENTS = 6
@@ -143,6 +149,9 @@ class Summary:
     exit_code: int
     interrupted: bool = False
     notes: list[str] = field(default_factory=list)
+    daemon_exit: int | None = None  # None: it did not run here (or did not finish)
+    probe_depth_m: float | None = None  # where the probe ended up, when known
+    remote: bool = False  # the daemon is elsewhere: we know only what it said on the link
 
     @property
     def problems(self) -> list[Violation]:
@@ -218,11 +227,33 @@ def summary_lines(summary: Summary) -> list[str]:
         lines.append(f"  export it: cc-daemon export --db {summary.db_path} --format csv")
     if summary.log_path is not None:
         lines.append(f"daemon log (JSON lines): {summary.log_path}")
-    if summary.interrupted:
-        lines.append("interrupted: the daemon brought the probe home before stopping")
+    ending = _ending(summary)
+    if ending is not None:
+        lines.append(ending)
     verdict = "SURVEY OK" if summary.exit_code == 0 else "SURVEY FAILED"
     lines.append(f"{verdict} (exit status {summary.exit_code})")
     return lines
+
+
+def _ending(summary: Summary) -> str | None:
+    """How the run ended for the probe, saying only what is known."""
+    depth = summary.probe_depth_m
+    at = "" if depth is None else f" at {depth:.2f} m"
+    if summary.daemon_exit == EXIT_PROBE_MAY_BE_DOWN:
+        return f"stopped at once: the probe may be down{at}"
+    if not summary.interrupted:
+        return None
+    if summary.remote:
+        said = "" if depth is None else f"; it last reported the probe{at}"
+        return (
+            "interrupted: the simulated autopilot stopped; the daemon on the other end "
+            f"carries on as it sees fit{said}"
+        )
+    if depth is None:
+        return "interrupted"
+    if depth <= HOME_M:
+        return "interrupted: the daemon brought the probe home before stopping"
+    return f"interrupted: the daemon stopped with the probe{at}"
 
 
 def _excused_lines(violations: list[Violation]) -> list[str]:
@@ -242,8 +273,9 @@ class SimConsole:
         self.out = out if out is not None else sys.stdout
         is_tty = _isatty(self.out)
         self.live = is_tty if live is None else live
+        self._guard = _GuardedStream(self.out)
         self.rich = Console(
-            file=self.out,
+            file=cast(TextIO, self._guard),
             force_terminal=self.live or None,
             width=None if is_tty else 110,
             highlight=False,
@@ -254,6 +286,11 @@ class SimConsole:
         self.received: deque[str] = deque(maxlen=_RECENT_FRAMES)
         self.events: deque[str] = deque(maxlen=_RECENT_EVENTS)
         self._live: Live | None = None
+
+    @property
+    def output_lost(self) -> Exception | None:
+        """Why output stopped (the reader left, the terminal went away), if it did."""
+        return self._guard.broken
 
     # ------------------------------------------------------------ lifecycle
 
@@ -386,8 +423,63 @@ class SimConsole:
 def _isatty(stream: TextIO) -> bool:
     try:
         return stream.isatty()
-    except (AttributeError, ValueError):
+    except (AttributeError, ValueError, OSError):
         return False
+
+
+class _GuardedStream:
+    """The console's output stream: the first write or flush that fails stops all output.
+
+    rich's own answer to a broken pipe is `SystemExit(1)`, raised wherever the
+    write was: in the middle of a cast, that would abandon the probe. Here a
+    failed write is remembered and everything after it is dropped. The failed
+    descriptor is pointed at /dev/null, so the interpreter's last flush of
+    stdout at exit does not fail again.
+    """
+
+    def __init__(self, out: TextIO) -> None:
+        self._out = out
+        self.broken: Exception | None = None
+
+    @property
+    def encoding(self) -> str:
+        return str(getattr(self._out, "encoding", None) or "utf-8")
+
+    def write(self, text: str) -> int:
+        if self.broken is None:
+            try:
+                self._out.write(text)
+            except (OSError, ValueError) as exc:  # ValueError: the stream was closed
+                self._lose(exc)
+        return len(text)
+
+    def flush(self) -> None:
+        if self.broken is None:
+            try:
+                self._out.flush()
+            except (OSError, ValueError) as exc:  # ValueError: the stream was closed
+                self._lose(exc)
+
+    def isatty(self) -> bool:
+        return self.broken is None and _isatty(self._out)
+
+    def fileno(self) -> int:
+        return self._out.fileno()
+
+    def _lose(self, exc: Exception) -> None:
+        self.broken = exc
+        try:
+            fd = self._out.fileno()
+        except (AttributeError, ValueError, OSError):
+            return  # not a descriptor (a StringIO): nothing will flush it again
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(devnull, fd)
+            finally:
+                os.close(devnull)
+        except OSError:
+            pass
 
 
 def render_to_text(render: Callable[[Console], None], width: int = 110) -> str:

@@ -28,6 +28,7 @@ SONAR_NOISE_M = 0.02  # one standard deviation, clipped at three
 SONAR_MAX_NOISE_M = 0.05
 _SHOAL_RADIUS_M = 40.0
 _MIN_SPACING_M = 180.0  # 4.5 shoal radii: the shoal's effect there is under 0.1 mm
+_PLACEMENT_ATTEMPTS = 100  # per station, before the mission is refused
 
 
 def to_lat_lon(east_m: float, north_m: float) -> tuple[float, float]:
@@ -159,6 +160,8 @@ def make_mission(stations: int = 3, seed: int = 1) -> Mission:
 
     With two or more stations, one of them (never the first, so the demo
     shows a cast before a refusal) sits on a shoal in SHALLOW_WATER_M of water.
+    Raises ValueError if a station cannot be placed far enough from the others
+    (the meandering line boxed itself in).
     """
     if stations < 1:
         raise ValueError(f"stations={stations} is invalid: allowed >= 1")
@@ -170,7 +173,7 @@ def make_mission(stations: int = 3, seed: int = 1) -> Mission:
     for i in range(stations):
         # A meandering line; a station never lands within _MIN_SPACING_M of
         # an earlier one, so the shoal cannot shade a second station.
-        for _attempt in range(100):
+        for _attempt in range(_PLACEMENT_ATTEMPTS):
             turn = heading + rng.uniform(-0.9, 0.9)
             step = rng.uniform(150.0, 250.0) if i == 0 else rng.uniform(200.0, 400.0)
             candidate = Point(
@@ -179,6 +182,12 @@ def make_mission(stations: int = 3, seed: int = 1) -> Mission:
             if all(candidate.distance_to(p) >= _MIN_SPACING_M for p in points):
                 break
             heading += rng.uniform(-math.pi, math.pi)  # boxed in: try another direction
+        else:
+            raise ValueError(
+                f"stations={stations}, seed={seed}: station {i + 1} cannot be placed "
+                f"{_MIN_SPACING_M:g} m from the others in {_PLACEMENT_ATTEMPTS} tries; "
+                "try another seed or fewer stations"
+            )
         heading, here = turn, candidate
         points.append(here)
     shallow_index = rng.randrange(1, stations) if stations >= 2 else None

@@ -11,7 +11,8 @@ autopilot, a test), never closes a descriptor it was lent (`over_fd`), and
 never raises because of bad bytes from the peer: they become `errors`.
 
 Times are `time.monotonic()` seconds, the event loop's clock. A received
-frame's time is taken when the read that completed it returned.
+frame's time (and a corrupt frame's, in `error_times`) is taken when the read
+that completed it returned, after `rx_filter` saw the bytes.
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ class FramePort:
         self.sent: list[Sent] = []
         self.received: list[Received] = []
         self.errors: list[CorruptFrame] = []
+        self.error_times: list[float] = []  # when each of `errors` was found, in step with it
         self.bytes_in = 0
         self.bytes_out = 0
         self.hung_up = False  # the peer hung up (EIO / end of file): nothing more will arrive
@@ -199,13 +201,14 @@ class FramePort:
         self._data_received(data)
 
     def _data_received(self, data: bytes) -> None:
-        now = time.monotonic()
         if self.rx_filter is not None:
             data = self.rx_filter(data)
+        now = time.monotonic()  # after the filter: what it did to these bytes is not later
         self.bytes_in += len(data)
         for event in self.parser.events(data):
             if isinstance(event, CorruptFrame):
                 self.errors.append(event)
+                self.error_times.append(now)
                 continue
             received = Received(now, event, encode(event))
             self.received.append(received)

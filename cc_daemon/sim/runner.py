@@ -23,13 +23,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import io
 import json
 import math
 import signal
 import sys
 import tempfile
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,7 +44,14 @@ from cc_daemon.sim.autopilot import (
     Violation,
     ViolationKind,
 )
-from cc_daemon.sim.console import MARKS, SimConsole, StationRow, Summary, ViewState
+from cc_daemon.sim.console import (
+    EXIT_PROBE_MAY_BE_DOWN,
+    MARKS,
+    SimConsole,
+    StationRow,
+    Summary,
+    ViewState,
+)
 from cc_daemon.sim.mission import (
     EARTH_RADIUS_M,
     MIN_CASTABLE_WATER_M,
@@ -67,7 +74,6 @@ if TYPE_CHECKING:
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
-EXIT_PROBE_MAY_BE_DOWN = 130
 
 DEFAULT_DB = Path("simulate.db")
 STALL_AT_M = 1.0  # shallower than every castable station's plan (>= 1.95 m)
@@ -92,11 +98,12 @@ class Pace:
         return max_duration_s + self.finish_margin_s
 
 
-# The demo: brisk transits (a few seconds each), a winch at 1.25 m/s, a second and a
-# half at the bottom. A three-station survey takes about half a minute.
+# The demo: the firmware's one frame a second, but brisk transits (a few seconds
+# each), a winch at 1.25 m/s and a second and a half at the bottom. A three-station
+# survey takes about half a minute.
 FAST = Pace(
     "fast",
-    frame_period_s=0.5,
+    frame_period_s=1.0,
     boat_speed_m_s=80.0,
     winch_speed_m_s=1.25,
     cast={"bottom_dwell_s": 1.5, "dwell_s": 1.0, "soak_s": 0.0, "max_duration_s": 20.0},
@@ -190,35 +197,60 @@ def plan_is_predictable(cast: CastSettings) -> bool:
 # ---------------------------------------------------------------- the daemon's log
 
 
-class LogTap(io.TextIOBase):
-    """The daemon's log stream: every line to the log file, info and up to the console."""
+class LogTap:
+    """The daemon's log stream: every line to the log file; info and up queued for the console.
+
+    It is written from inside the daemon's logging calls, so it never raises
+    and never prints: a failing log file is counted (`write_errors`) and the
+    events for the console wait in a queue until the run's loop `drain`s them.
+    A plain object with `write` and `flush` (all structlog needs), not an
+    `io` stream: it has no finaliser to flush a file closed before it.
+    """
 
     _QUIET = frozenset({"timestamp", "level", "logger", "event"})
     _SHOWN = frozenset({"info", "warning", "error", "critical"})
 
-    def __init__(self, file: TextIO, on_event: Callable[[dict[str, Any]], None]) -> None:
+    def __init__(self, file: TextIO, clock: Callable[[], float]) -> None:
         self._file = file
-        self._on_event = on_event
+        self._clock = clock
         self._partial = ""
-
-    def writable(self) -> bool:
-        return True
+        self._events: deque[tuple[float, dict[str, Any]]] = deque()
+        self.write_errors = 0
 
     def write(self, text: str) -> int:
-        self._file.write(text)
-        self._partial += text
-        *lines, self._partial = self._partial.split("\n")
-        for line in lines:
-            try:
-                event = json.loads(line)
-            except ValueError:
-                continue
-            if isinstance(event, dict) and event.get("level") in self._SHOWN:
-                self._on_event(event)
+        try:
+            self._file.write(text)
+        except Exception:  # a full disk, a closed file: the daemon must carry on
+            self.write_errors += 1
+        try:
+            self._partial += text
+            *lines, self._partial = self._partial.split("\n")
+            for line in lines:
+                self._take(line)
+        except Exception:  # never into the daemon's logging call
+            self._partial = ""
         return len(text)
 
+    def _take(self, line: str) -> None:
+        try:
+            event = json.loads(line)
+        except ValueError:
+            return
+        if isinstance(event, dict) and event.get("level") in self._SHOWN:
+            self._events.append((self._clock(), event))
+
     def flush(self) -> None:
-        self._file.flush()
+        try:
+            self._file.flush()
+        except Exception:
+            self.write_errors += 1
+
+    def drain(self) -> list[tuple[float, dict[str, Any]]]:
+        """The queued events (time from `clock`, the event), oldest first; the queue empties."""
+        out: list[tuple[float, dict[str, Any]]] = []
+        while self._events:
+            out.append(self._events.popleft())
+        return out
 
     @classmethod
     def describe(cls, event: dict[str, Any]) -> str:
@@ -256,6 +288,7 @@ class _Run:
         self.flip_in = flip_in
         self.drop_at = drop_at
         self.drop_for = drop_for
+        self.tap: LogTap | None = None  # the daemon's log events, for the console
         self.port: FramePort | None = None
         self.ports: list[FramePort] = []
         self.t0 = time.monotonic()
@@ -269,6 +302,7 @@ class _Run:
         self.status: DaemonStatus | None = None
         self._errors_seen = 0
         self._violations_seen = 0
+        self._flips_seen = {True: 0, False: 0}  # inbound? -> flips passed to the autopilot
         self._phase = autopilot.phase
         self._index = autopilot.index
         self._link_up = False
@@ -296,8 +330,10 @@ class _Run:
     async def pump(self, done: Callable[[], bool], *, deadline: float | None = None) -> None:
         """Move frames until `done()` (or `deadline`, seconds into the run)."""
         while not done() and (deadline is None or self.now() < deadline):
+            self.drain_log()
             now = self.now()
             await self._link_schedule(now)
+            self._forward_noise()
             for message in self.autopilot.poll(now):
                 await self._send(now, message)
             self._observe(now)
@@ -307,9 +343,41 @@ class _Run:
                 await asyncio.sleep(wait)
                 continue
             received = await port.receive(wait)
+            self.drain_log()  # what the daemon logged before it sent this frame comes first
+            self._forward_noise()
+            self._on_errors(port)  # found before this frame was handed over, or with it
             if received is not None:
                 self._on_received(received)
+
+    async def collect(self, quiet_s: float = 0.2) -> None:
+        """Take the frames still on their way, sending none, until `quiet_s` without one."""
+        port = self.port
+        if port is None:
+            return
+        while (received := await port.receive(quiet_s)) is not None:
+            self.drain_log()
+            self._forward_noise()
             self._on_errors(port)
+            self._on_received(received)
+        self._on_errors(port)
+        self.drain_log()
+
+    def drain_log(self) -> None:
+        """Show the daemon's queued log events."""
+        if self.tap is None:
+            return
+        for at, event in self.tap.drain():
+            self.console.event(at, LogTap.describe(event))
+
+    def _forward_noise(self) -> None:
+        """Tell the autopilot when injected noise flipped bits, each way."""
+        for flipper, inbound in ((self.flip_in, True), (self.flip_out, False)):
+            if flipper is None:
+                continue
+            times = flipper.flip_times
+            for at in times[self._flips_seen[inbound] :]:
+                self.autopilot.bits_flipped(at - self.t0, inbound=inbound)
+            self._flips_seen[inbound] = len(times)
 
     async def _send(self, now: float, message: Message) -> None:
         self.console.frame_out(now, message)
@@ -327,10 +395,12 @@ class _Run:
         self.autopilot.on_frame(at, received.message)
 
     def _on_errors(self, port: FramePort) -> None:
-        for error in port.errors[self._errors_seen :]:
-            now = self.now()
-            self.console.corrupt_in(now, error)
-            self.autopilot.on_corrupt(now, error)
+        for error, found in zip(
+            port.errors[self._errors_seen :], port.error_times[self._errors_seen :], strict=True
+        ):
+            at = found - self.t0
+            self.console.corrupt_in(at, error)
+            self.autopilot.on_corrupt(at, error)
         self._errors_seen = len(port.errors)
 
     async def _link_schedule(self, now: float) -> None:
@@ -560,11 +630,20 @@ def build_summary(
             verdict = f"aborted: {reason.removeprefix('winch fault: ')}"
         elif ok and number in run.faults and log.reports:
             verdict = f"aborted: {run.faults[number]}"
+        # How deep the probe went: the daemon's journal knows (its winch); the
+        # deepest R-M that arrived can fall short (a lost report, a stall
+        # between two reports, a cable pulled mid-cast).
+        heard = log.max_depth_m if log.reports else (0.0 if log.finished_at is not None else None)
         journal_reached = recorded[-1].reached_depth_m if recorded else None
-        if journal_reached is not None and journal_reached - log.max_depth_m > 0.05:
-            extra_notes.append(
-                f"S{number}: the journal says the probe reached {journal_reached:.2f} m; "
+        reached = journal_reached if journal_reached is not None else heard
+        if journal_reached is not None and abs(journal_reached - log.max_depth_m) > 0.05:
+            said = (
                 f"the deepest R-M that arrived said {log.max_depth_m:.2f} m"
+                if log.reports
+                else "no R-M arrived"
+            )
+            extra_notes.append(
+                f"S{number}: the journal says the probe reached {journal_reached:.2f} m; {said}"
             )
         if len(recorded) > 1:
             ok = False
@@ -577,16 +656,27 @@ def build_summary(
                 lon_deg=lon,
                 water_depth_m=log.station.water_depth_m,
                 planned_depth_m=planned,
-                reached_depth_m=(
-                    log.max_depth_m if log.reports else (0.0 if log.finished_at else None)
-                ),
+                reached_depth_m=reached,
                 duration_s=log.cast_duration_s,
                 reports=log.reports,
                 verdict=verdict,
                 ok=ok,
             )
         )
+    if run.drop_at is not None and run.link_drops == 0:
+        extra_notes.append(
+            f"cable never pulled: the run ended at {now:.1f} s, "
+            f"before --drop-link-at {run.drop_at:g}"
+        )
+    elif run.unplugged_at is not None:
+        extra_notes.append(
+            f"the run ended with the cable still out (pulled at {run.unplugged_at:.1f} s)"
+        )
     status = run.status
+    # Where the probe ended: the daemon's winch here, or what a remote daemon last said.
+    probe_depth_m = status.probe_depth_m if status is not None else None
+    if run.daemon is None:
+        probe_depth_m = ap.probe_depth_m
     problems = [v for v in violations if not v.excused]
     if daemon_exit == EXIT_PROBE_MAY_BE_DOWN:
         code = EXIT_PROBE_MAY_BE_DOWN
@@ -616,13 +706,17 @@ def build_summary(
         exit_code=code,
         interrupted=run.interrupts > 0,
         notes=[*(notes or []), *extra_notes],
+        daemon_exit=daemon_exit,
+        probe_depth_m=probe_depth_m,
+        remote=run.daemon is None,
     )
 
 
 # ---------------------------------------------------------------- --simulate
 
 
-def _autopilot_config(options: SimOptions, settings: Settings) -> AutopilotConfig:
+def autopilot_config(options: SimOptions, settings: Settings) -> AutopilotConfig:
+    """The simulated autopilot's settings for a run against a daemon with `settings`."""
     pace = options.chosen_pace
     return AutopilotConfig(
         frame_period_s=pace.frame_period_s,
@@ -631,8 +725,9 @@ def _autopilot_config(options: SimOptions, settings: Settings) -> AutopilotConfi
         finish_timeout_s=pace.finish_timeout_s(settings.cast.max_duration_s),
         max_line_m=settings.winch.max_line_m,
         check_plan=plan_is_predictable(settings.cast),
-        noise_inbound=options.corrupt > 0,
-        noise_outbound=options.corrupt > 0,
+        # After a replug the daemon retries its port at most this far apart;
+        # silence is excused until then, and a second more to answer.
+        outage_grace_s=settings.serial.reconnect_max_s + 1.0,
     )
 
 
@@ -692,7 +787,7 @@ async def run_simulation(options: SimOptions) -> int:
         log_path.open("a", encoding="utf-8") as log_file,
     ):
         settings = daemon_settings(options, pair.path)
-        autopilot = Autopilot(mission, _autopilot_config(options, settings))
+        autopilot = Autopilot(mission, autopilot_config(options, settings))
         daemon = Daemon(settings)
         run = _Run(
             mission,
@@ -705,8 +800,8 @@ async def run_simulation(options: SimOptions) -> int:
             drop_at=options.drop_link_at,
             drop_for=options.drop_link_for,
         )
-        tap = LogTap(log_file, lambda event: console.event(run.now(), LogTap.describe(event)))
-        configure_logging("json", settings.log.level, stream=cast(TextIO, tap))
+        run.tap = LogTap(log_file, run.now)
+        configure_logging("json", settings.log.level, stream=cast(TextIO, run.tap))
         console.start(mission, _headline(options, mission))
         daemon_task = asyncio.create_task(daemon.run(), name="daemon")
         daemon_exit: int | None = None
@@ -714,13 +809,15 @@ async def run_simulation(options: SimOptions) -> int:
             with _signals(run, options.handle_signals):
                 daemon_exit = await _survey(run, daemon, daemon_task, settings, notes)
         finally:
-            if not daemon_task.done():
-                daemon.request_shutdown(immediate=True)
-                with contextlib.suppress(Exception):
-                    await asyncio.wait_for(daemon_task, 10.0)
-            await run.close()
-            console.stop()
-            reset_logging()
+            try:
+                # Something went wrong in the run itself: still bring the probe
+                # home if the daemon can, and only then stop it at once.
+                await _stop_daemon(daemon, daemon_task, settings)
+            finally:
+                run.drain_log()
+                await run.close()
+                console.stop()
+                reset_logging()
         casts: list[JournalCast] | None = None
         try:
             casts = journal_casts(db_path, mission, run.wall0 - 1.0)
@@ -769,9 +866,23 @@ async def _survey(
     except Exception as exc:  # a daemon bug: report it in the summary, do not hide it
         notes.append(f"the daemon failed: {type(exc).__name__}: {exc}")
         code = EXIT_FAILED
+    await run.collect()  # its last frames (an R-F) may still be on the wire
     run.status = daemon.snapshot()
     autopilot.finish(run.now(), interrupted=run.interrupts > 0)
     return code
+
+
+async def _stop_daemon(daemon: Daemon, task: asyncio.Task[int], settings: Settings) -> None:
+    """Make sure the daemon has stopped: gracefully within the grace, else at once."""
+    if task.done():
+        return
+    daemon.request_shutdown()
+    await asyncio.wait({task}, timeout=_shutdown_grace_s(settings, gave_up=False))
+    if not task.done():
+        daemon.request_shutdown(immediate=True)
+        await asyncio.wait({task}, timeout=10.0)
+    if task.done() and not task.cancelled():
+        task.exception()  # seen: the error that brought us here is the one to report
 
 
 def _shutdown_grace_s(settings: Settings, *, gave_up: bool) -> float:
@@ -883,6 +994,13 @@ def _seconds(text: str) -> float:
     return value
 
 
+def _positive_seconds(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text}: seconds, > 0")
+    return value
+
+
 def _mission_arguments(group: argparse._ArgumentGroup) -> None:
     group.add_argument(
         "--stations", type=_count, default=3, metavar="N", help="stations to visit (3)"
@@ -909,14 +1027,16 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--realtime",
         action="store_true",
-        help="real speeds: 1 frame/s, boat 1.5 m/s, the configured winch and cast (minutes)",
+        help="real speeds: boat 1.5 m/s, the configured winch and cast (minutes per station)",
     )
     group.add_argument(
         "--corrupt",
         type=_rate,
         default=0.0,
         metavar="RATE",
-        help="flip a bit in each byte on the link with this probability, both ways (e.g. 0.01)",
+        help="flip one bit in a byte on the link with this probability, both ways (e.g. "
+        "0.02), never two bits within 25 bytes (the longest frame): every spoiled frame "
+        "fails its checksum, as on a line whose checksum catches every error",
     )
     group.add_argument(
         "--drop-link-at",
@@ -924,7 +1044,9 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="T",
         help="pull the cable T seconds into the run, for --drop-link-for seconds",
     )
-    group.add_argument("--drop-link-for", type=_seconds, default=3.0, metavar="S", help="(3 s)")
+    group.add_argument(
+        "--drop-link-for", type=_positive_seconds, default=3.0, metavar="S", help="(3 s)"
+    )
     group.add_argument(
         "--winch-stall",
         action="store_true",
@@ -945,7 +1067,7 @@ def options_from_args(args: argparse.Namespace, settings: Settings | None) -> Si
         realtime=args.realtime,
         corrupt=args.corrupt,
         drop_link_at=args.drop_link_at,
-        drop_link_for=args.drop_link_for or 3.0,
+        drop_link_for=args.drop_link_for,
         winch_stall=args.winch_stall,
         winch_fail_home=args.winch_fail_home,
         resend_m=args.resend_m,
@@ -959,6 +1081,7 @@ def run_from_args(args: argparse.Namespace, settings: Settings | None = None) ->
     """`cc-daemon --simulate ...`: parse-time options to a finished run's exit status."""
     try:
         options = options_from_args(args, settings)
+        make_mission(options.stations, options.seed)  # a mission that cannot be laid out
     except ValueError as exc:
         print(f"cc-daemon --simulate: {exc}", file=sys.stderr)
         return EXIT_USAGE
