@@ -32,6 +32,7 @@ from cc_daemon.protocol import StartMeasuring, Telemetry
 from cc_daemon.store import Journal
 from cc_daemon.store import journal as journal_module
 from cc_daemon.store.schema import APPLICATION_ID
+from tests.journalkit import full_journal
 
 FIX = Telemetry(72, -37260579, 404506308, 702385, 8219, 100)
 STATION = StartMeasuring(73, -37260600, 404506400, 702000, 6500, 90)
@@ -157,18 +158,7 @@ def test_a_read_only_directory_is_written_once_it_is_writable_again(tmp_path: Pa
 
 def test_a_full_store_keeps_rows_in_memory_until_there_is_room(tmp_path: Path) -> None:
     db = tmp_path / "j.db"
-    setup = Journal(db)
-    setup.open()
-    setup.close()
-    full = True
-
-    def cap_at_current_size(conn: sqlite3.Connection) -> None:
-        # While "full", SQLite may not grow the file by a single page.
-        if full:
-            pages = conn.execute("PRAGMA page_count").fetchone()[0]
-            conn.execute(f"PRAGMA max_page_count = {pages}").fetchone()
-
-    journal = Journal(db, on_connect=cap_at_current_size)
+    journal, disk = full_journal(db)
     try:
         journal.open()
         for i in range(3000):  # some 150 kB: far more than the free pages
@@ -183,7 +173,7 @@ def test_a_full_store_keeps_rows_in_memory_until_there_is_room(tmp_path: Path) -
         assert health.pending_rows > 2500
         assert query(db, "SELECT count(*) FROM samples") == [(5,)]
         assert query(db, "SELECT outcome FROM casts") == [("completed",)]
-        full = False  # room again: the next reconnect sets no cap
+        disk.full = False  # room again: the next reconnect sets no cap
         wait_for(lambda: journal.health().pending_rows == 0)
     finally:
         journal.close()

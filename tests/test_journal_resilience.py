@@ -28,6 +28,7 @@ from cc_daemon.logsetup import configure_logging
 from cc_daemon.protocol import StartMeasuring, Telemetry
 from cc_daemon.store import Journal
 from cc_daemon.store import journal as journal_module
+from tests.journalkit import full_journal
 
 FIX = Telemetry(72, -37260579, 404506308, 702385, 8219, 100)
 STATION = StartMeasuring(73, -37260600, 404506400, 702000, 6500, 90)
@@ -150,17 +151,7 @@ def test_a_log_stream_that_raises_never_stops_the_writer_or_reaches_the_daemon(
     stream = BrokenStream()
     configure_logging(level="info", fmt="json", stream=stream)  # undone by conftest
     db = tmp_path / "j.db"
-    setup = Journal(db)
-    setup.open()
-    setup.close()
-    full = True
-
-    def cap_at_current_size(conn: sqlite3.Connection) -> None:
-        if full:
-            pages = conn.execute("PRAGMA page_count").fetchone()[0]
-            conn.execute(f"PRAGMA max_page_count = {pages}").fetchone()
-
-    journal = Journal(db, on_connect=cap_at_current_size)
+    journal, disk = full_journal(db)
     try:
         journal.open()
         stream.broken = True
@@ -173,7 +164,7 @@ def test_a_log_stream_that_raises_never_stops_the_writer_or_reaches_the_daemon(
         journal.record_sample(cast_id, 0.75, "descending")
         journal.record_fix("not a message")  # type: ignore[arg-type]
         wait_for(lambda: query(db, "SELECT count(*) FROM samples") == [(2,)])
-        full = False
+        disk.full = False
         wait_for(lambda: journal.health().pending_rows == 0)
         assert journal.health().writer_alive
     finally:

@@ -184,45 +184,14 @@ async def test_bit_flips_both_ways_are_counted_and_each_fault_they_cause_is_excu
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["completed", "skipped-shallow"]
 
 
-async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
-    tmp_path: Path,
-) -> None:
+async def _survey_interrupted_at(tmp_path: Path, *seconds: float) -> tuple[int, str]:
+    """A 2-station survey with a slow winch, sent a real SIGINT at each of `seconds`
+    (mid-cast at S1); its exit status and plain output."""
     slow_winch = Pace("quick", 0.25, 300.0, 0.4, cast={"bottom_dwell_s": 5.0})
     loop = asyncio.get_running_loop()
-    timer = loop.call_later(3.0, os.kill, os.getpid(), signal.SIGINT)
+    timers = [loop.call_later(t, os.kill, os.getpid(), signal.SIGINT) for t in seconds]
+    out = io.StringIO()
     try:
-        out = io.StringIO()
-        code = await run_simulation(
-            SimOptions(
-                stations=2,
-                pace=slow_winch,
-                db=tmp_path / "survey.db",
-                live=False,
-                out=out,
-                handle_signals=True,
-            )
-        )
-    finally:
-        timer.cancel()
-    text = out.getvalue()
-    assert code == 1, text
-    assert "Ctrl-C: the daemon brings the probe home, then stops" in text
-    assert "aborted: shutdown" in _row(text, "S1")
-    assert "not reached" in _row(text, "S2")
-    assert "interrupted: the daemon brought the probe home before stopping" in text
-    assert "probe may be down" not in text
-    assert "← R-F" in text
-    assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["aborted"]
-
-
-async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_be_down(
-    tmp_path: Path,
-) -> None:
-    slow_winch = Pace("quick", 0.25, 300.0, 0.4, cast={"bottom_dwell_s": 5.0})
-    loop = asyncio.get_running_loop()
-    timers = [loop.call_later(t, os.kill, os.getpid(), signal.SIGINT) for t in (2.5, 3.0)]
-    try:
-        out = io.StringIO()
         code = await run_simulation(
             SimOptions(
                 stations=2,
@@ -236,7 +205,27 @@ async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_
     finally:
         for timer in timers:
             timer.cancel()
-    text = out.getvalue()
+    return code, out.getvalue()
+
+
+async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
+    tmp_path: Path,
+) -> None:
+    code, text = await _survey_interrupted_at(tmp_path, 3.0)
+    assert code == 1, text
+    assert "Ctrl-C: the daemon brings the probe home, then stops" in text
+    assert "aborted: shutdown" in _row(text, "S1")
+    assert "not reached" in _row(text, "S2")
+    assert "interrupted: the daemon brought the probe home before stopping" in text
+    assert "probe may be down" not in text
+    assert "← R-F" in text
+    assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["aborted"]
+
+
+async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_be_down(
+    tmp_path: Path,
+) -> None:
+    code, text = await _survey_interrupted_at(tmp_path, 2.5, 3.0)
     assert code == 130, text
     assert "second Ctrl-C: the daemon stops at once" in text
     assert "brought the probe home" not in text
