@@ -28,7 +28,7 @@ ROOT="${DESTDIR%/}"
 ETC="$ROOT/etc"
 UNIT_DIR="$ETC/systemd/system"
 CONFIG="$ETC/cc-daemon/cc-daemon.toml"
-VENV="$ROOT$PREFIX/venv"
+VENV="$ROOT$PREFIX/.venv"
 SHARE="$ROOT$PREFIX/share"
 SYSUSERS="$ETC/sysusers.d/cc-daemon.conf"
 
@@ -118,10 +118,10 @@ cc-daemon is installed. Next steps:
   1. Edit the serial port and the winch in /etc/cc-daemon/cc-daemon.toml
      (for a stable name, see $PREFIX/share/udev/99-cc-autopilot.rules).
   2. Let your login read the status:  sudo usermod -aG cc-daemon \$USER  (then log in again)
-  3. Check the Pi:                     sudo -u cc-daemon $PREFIX/venv/bin/cc-daemon doctor
+  3. Check the Pi:                     sudo -u cc-daemon $PREFIX/.venv/bin/cc-daemon doctor
   4. Start it, now and at boot:        sudo systemctl enable --now cc-daemon
   5. Watch it:                         journalctl -u cc-daemon -f
-                                       $PREFIX/venv/bin/cc-daemon status --watch
+                                       $PREFIX/.venv/bin/cc-daemon status --watch
 Upgrade later: git pull && sudo make install && sudo systemctl restart cc-daemon
 EOF
 }

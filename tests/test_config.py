@@ -503,11 +503,7 @@ def _leaf_names(section: dict[str, Any], prefix: str = "") -> Iterator[str]:
 def reference_rows() -> dict[str, str]:
     """key -> default column of the reference's key table."""
     rows: dict[str, str] = {}
-    # The README's key table, and the tables of pages that document a section of
-    # their own (docs/status.md: [status]).
-    pages = [CONFIG_REFERENCE, *sorted((ROOT / "docs").glob("*.md"))]
-    lines = [line for page in pages for line in page.read_text(encoding="utf-8").splitlines()]
-    for line in lines:
+    for line in CONFIG_REFERENCE.read_text(encoding="utf-8").splitlines():
         row = re.match(r"\| `([\w.]+)` \| ([^|]*) \|", line)
         if row and "." in row[1]:
             rows[row[1]] = row[2].strip()

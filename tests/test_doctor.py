@@ -236,7 +236,7 @@ async def test_each_planted_failure_is_found_with_a_fix(
 
 async def test_the_running_daemon_holding_the_port_is_fine(pi: Pi) -> None:
     pi.write(
-        "/proc/555/cmdline", "/opt/cc-daemon/venv/bin/python\0/opt/cc-daemon/venv/bin/cc-daemon\0"
+        "/proc/555/cmdline", "/opt/cc-daemon/.venv/bin/python\0/opt/cc-daemon/.venv/bin/cc-daemon\0"
     )
     (pi.root / "proc/555/fd").mkdir()
     (pi.root / "proc/555/fd/5").symlink_to(pi.device)

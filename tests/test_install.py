@@ -50,7 +50,7 @@ def test_install_twice_then_uninstall(tmp_path: Path) -> None:
 
     unit = dest / "etc/systemd/system/cc-daemon.service"
     config = dest / "etc/cc-daemon/cc-daemon.toml"
-    venv = dest / "opt/cc-daemon/venv"
+    venv = dest / "opt/cc-daemon/.venv"
     assert unit.read_text() == (REPO / "systemd/cc-daemon.service").read_text()
     assert config.read_text() == (REPO / "config/cc-daemon.toml").read_text()
     assert (mode(unit), mode(config)) == ("0o644", "0o640")

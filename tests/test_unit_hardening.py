@@ -76,7 +76,7 @@ def test_verify_is_clean(tmp_path: Path) -> None:
     # machine, so point it at this checkout's own entry point and check the rest.
     entry = Path(sys.executable).with_name("cc-daemon")
     assert entry.exists(), entry
-    text = UNIT.read_text().replace("/opt/cc-daemon/venv/bin/cc-daemon", str(entry))
+    text = UNIT.read_text().replace("/opt/cc-daemon/.venv/bin/cc-daemon", str(entry))
     assert str(entry) in text
     copy = tmp_path / "cc-daemon.service"
     copy.write_text(text)
