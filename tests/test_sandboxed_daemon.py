@@ -10,15 +10,19 @@ from ordinary tools and runs a whole cast inside them:
   the unit's SystemCallFilter= and ProtectClock= make them (libseccomp, the
   library systemd uses: tests/seccomp_exec.py), the list taken from this
   machine's `systemd-analyze syscall-filter`;
+- the whole file system read-only but the state and runtime directories
+  (`unshare --mount`, a read-only remount of /: ProtectSystem=strict);
 - UMask=0027, and systemd's contract: $STATE_DIRECTORY for the journal,
   $RUNTIME_DIRECTORY for the status socket, READY=1 on $NOTIFY_SOCKET.
-The rest (DevicePolicy=, ProtectSystem=, the dedicated user) needs systemd: see
+The rest (DevicePolicy=, ProtectHome= (this machine's Python lives under /root),
+the dedicated user, the Protect*/Restrict* kernel settings) needs systemd: see
 docs/deployment.md for the check on the Pi.
 """
 
 from __future__ import annotations
 
 import asyncio
+import errno
 import os
 import shutil
 import socket
@@ -28,6 +32,7 @@ import sys
 from collections.abc import Callable
 from ctypes.util import find_library
 from functools import cache
+from pathlib import Path
 
 import pytest
 
@@ -64,27 +69,62 @@ def syscalls(group: str) -> frozenset[str]:
     return frozenset(names)
 
 
+# In a private mount namespace: the two writable directories become mounts of
+# their own, then the root is remounted read-only (ProtectSystem=strict), then the
+# capabilities go.
+_SANDBOX = (
+    'mount --bind "$STATE_DIRECTORY" "$STATE_DIRECTORY"'
+    ' && mount --bind "$RUNTIME_DIRECTORY" "$RUNTIME_DIRECTORY"'
+    " && mount -o remount,bind,ro /"
+    " && umask 0027"
+    ' && exec setpriv --inh-caps=-all --bounding-set=-all --no-new-privs -- "$@"'
+)
+
+
 def sandbox_prefix() -> list[str]:
     denied = syscalls("@privileged") | syscalls("@resources") | syscalls("@clock")
     assert {"setuid", "setrlimit", "adjtimex", "chown"} <= denied
     return [
         "unshare",
         "--net",
-        "--",
-        "setpriv",
-        "--inh-caps=-all",
-        "--bounding-set=-all",
-        "--no-new-privs",
+        "--mount",
         "--",
         "sh",
         "-c",
-        'umask 0027 && exec "$@"',
+        _SANDBOX,
         "sh",
         sys.executable,
         str(REPO / "tests" / "seccomp_exec.py"),
         ",".join(sorted(denied)),
         "--",
     ]
+
+
+def test_the_sandbox_is_real(tmp_path: Path) -> None:
+    state, runtime = tmp_path / "state", tmp_path / "run"
+    state.mkdir()
+    runtime.mkdir()
+    probe = (
+        "import os, socket, sys\n"
+        "open(os.environ['STATE_DIRECTORY'] + '/ok', 'w').close()\n"
+        "for what in (lambda: open(sys.argv[1], 'w'), lambda: os.setpriority(0, 0, 5),\n"
+        "             lambda: socket.create_connection(('127.0.0.1', 9))):\n"
+        "    try:\n"
+        "        what()\n"
+        "    except OSError as exc:\n"
+        "        print(exc.errno)\n"
+    )
+    result = subprocess.run(
+        [*sandbox_prefix(), sys.executable, "-c", probe, str(tmp_path / "outside")],
+        capture_output=True,
+        text=True,
+        check=False,
+        env={**os.environ, "STATE_DIRECTORY": str(state), "RUNTIME_DIRECTORY": str(runtime)},
+    )
+    assert result.returncode == 0, result.stderr
+    # Read-only file system, a denied system call, no network.
+    assert result.stdout.split() == [str(errno.EROFS), str(errno.EPERM), str(errno.ENETUNREACH)]
+    assert (state / "ok").exists() and not (tmp_path / "outside").exists()
 
 
 async def test_a_whole_cast_inside_the_sandbox(make_daemon: Callable[..., DaemonProcess]) -> None:
@@ -118,6 +158,7 @@ async def test_a_whole_cast_inside_the_sandbox(make_daemon: Callable[..., Daemon
         doc = await asyncio.to_thread(read_status, runtime / "status.sock")
 
     assert "seccomp_exec: " in daemon.log_text() and "system calls denied" in daemon.log_text()
+    assert not (daemon.tmp / "cc-daemon.db").exists()  # nothing written beside the config
     assert doc["link"]["up"] is True and doc["counters"]["casts_completed"] == 1
     assert doc["journal"]["path"] == str(state / "cc-daemon.db")
     assert doc["journal"]["writable"] is True
