@@ -21,6 +21,8 @@ set -euo pipefail
 
 SRC="$(cd "$(dirname "$0")/.." && pwd)"
 DESTDIR="${DESTDIR:-}"
+# A relative DESTDIR would be relative to wherever each tool runs: pin it.
+[[ -n "$DESTDIR" ]] && DESTDIR="$(realpath -m "$DESTDIR")"
 PREFIX="${PREFIX:-/opt/cc-daemon}"
 PYTHON="${PYTHON:-python3}"
 PIP_ARGS="${PIP_ARGS:-}"

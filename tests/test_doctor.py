@@ -9,6 +9,7 @@ directory (free space, clock, systemd's opinion) are injected.
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import subprocess
 import sys
@@ -259,3 +260,14 @@ async def test_the_command_exits_1_on_a_fail_and_prints_the_fix(pi: Pi) -> None:
     assert "fix: sudo raspi-config nonint do_serial_cons 1" in result.stdout
     # Under --root systemd is not asked; the socket in the root still is.
     assert "WARN  service" in result.stdout and "OK    status socket" in result.stdout
+    as_json = await asyncio.to_thread(
+        subprocess.run,
+        [sys.executable, "-m", "cc_daemon", "doctor", "--root", str(pi.root), "--json"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        timeout=30,
+    )
+    checks = {c["name"]: c for c in json.loads(as_json.stdout)}
+    assert as_json.returncode == 1 and checks["login console"]["level"] == "FAIL"
+    assert set(checks["config"]) == {"name", "level", "detail", "fix"}

@@ -26,9 +26,11 @@ pytestmark = [
 ]
 
 
-def make(target: str, destdir: Path, **env: str) -> subprocess.CompletedProcess[str]:
+def make(target: str, destdir: Path | None, **env: str) -> subprocess.CompletedProcess[str]:
+    """`make target DESTDIR=destdir`; None stands for the real thing (an empty DESTDIR)."""
+    stage = "" if destdir is None else str(destdir)
     return subprocess.run(
-        ["make", "--no-print-directory", "-C", str(REPO), target, f"DESTDIR={destdir}"],
+        ["make", "--no-print-directory", "-C", str(REPO), target, f"DESTDIR={stage}"],
         capture_output=True,
         text=True,
         check=False,
@@ -89,6 +91,6 @@ def test_install_twice_then_uninstall(tmp_path: Path) -> None:
 def test_real_install_needs_root_and_says_so(tmp_path: Path) -> None:
     if os.geteuid() == 0:
         pytest.skip("running as root: a real install would change this machine")
-    result = make("install", Path(""))
+    result = make("install", None)
     assert result.returncode != 0
     assert "run as root" in result.stderr
