@@ -115,6 +115,7 @@ class DaemonStatus:
     port_losses: int
     last_fix: Fix | None
     winch: WinchStatus | None = None
+    stopping: bool = False
 
 
 class _ActiveCast:
@@ -361,6 +362,7 @@ class Daemon:
             port_losses=self.port_losses,
             last_fix=self.last_fix,
             winch=self._winch_status() if self._winch is not None else None,
+            stopping=self._shutting_down,
         )
 
     @property

@@ -33,6 +33,7 @@ CONFIG="$ETC/cc-daemon/cc-daemon.toml"
 VENV="$ROOT$PREFIX/.venv"
 SHARE="$ROOT$PREFIX/share"
 SYSUSERS="$ETC/sysusers.d/cc-daemon.conf"
+LINK="$ROOT/usr/local/bin/cc-daemon"
 
 say() { printf 'cc-daemon install: %s\n' "$*"; }
 die() { printf 'cc-daemon install: error: %s\n' "$*" >&2; exit 1; }
@@ -88,7 +89,13 @@ make_venv() {
 }
 
 install_files() {
-    install -d -m 0755 "$UNIT_DIR" "$SHARE" "$SHARE/docs" "$SHARE/udev"
+    install -d -m 0755 "$UNIT_DIR" "$SHARE" "$SHARE/docs" "$SHARE/udev" "$ROOT/usr/local/bin"
+    # `cc-daemon status` and `doctor` on every user's PATH; another cc-daemon there is kept.
+    if [[ ! -e "$LINK" || "$(readlink "$LINK")" == "$PREFIX/.venv/bin/cc-daemon" ]]; then
+        ln -sfn "$PREFIX/.venv/bin/cc-daemon" "$LINK"
+    else
+        say "keeping $LINK (not ours); the program is $PREFIX/.venv/bin/cc-daemon"
+    fi
     install -m 0644 "$SRC/systemd/cc-daemon.service" "$UNIT_DIR/cc-daemon.service"
     install -m 0644 "$SRC/systemd/99-cc-autopilot.rules" "$SHARE/udev/99-cc-autopilot.rules"
     install -m 0644 "$SRC/config/cc-daemon.toml" "$SHARE/cc-daemon.toml.default"
@@ -120,10 +127,10 @@ cc-daemon is installed. Next steps:
   1. Edit the serial port and the winch in /etc/cc-daemon/cc-daemon.toml
      (for a stable name, see $PREFIX/share/udev/99-cc-autopilot.rules).
   2. Let your login read the status:  sudo usermod -aG cc-daemon \$USER  (then log in again)
-  3. Check the Pi:                     sudo -u cc-daemon $PREFIX/.venv/bin/cc-daemon doctor
+  3. Check the Pi:                     sudo cc-daemon doctor
   4. Start it, now and at boot:        sudo systemctl enable --now cc-daemon
   5. Watch it:                         journalctl -u cc-daemon -f
-                                       $PREFIX/.venv/bin/cc-daemon status --watch
+                                       cc-daemon status --watch
 Upgrade later: git pull && sudo make install && sudo systemctl restart cc-daemon
 EOF
 }
@@ -134,6 +141,9 @@ do_uninstall() {
         systemctl disable --now cc-daemon.service 2>/dev/null || true
     fi
     rm -f "$UNIT_DIR/cc-daemon.service" "$SYSUSERS"
+    if [[ "$(readlink "$LINK" 2>/dev/null)" == "$PREFIX/.venv/bin/cc-daemon" ]]; then
+        rm -f "$LINK"
+    fi
     rm -rf "$ROOT$PREFIX"
     if [[ -z "$DESTDIR" ]]; then
         systemctl daemon-reload

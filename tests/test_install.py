@@ -68,6 +68,9 @@ def test_install_twice_then_uninstall(tmp_path: Path) -> None:
         [str(venv / "bin/cc-daemon"), "--version"], capture_output=True, text=True, check=True
     )
     assert version.stdout.startswith("cc-daemon ")
+    # On everyone's PATH, pointing into the venv as the Pi will see it.
+    link = dest / "usr/local/bin/cc-daemon"
+    assert os.readlink(link) == "/opt/cc-daemon/.venv/bin/cc-daemon"
 
     # An operator's configuration survives a second install (an upgrade).
     config.write_text('[serial]\nport = "/dev/cc-autopilot"\n')
@@ -83,6 +86,7 @@ def test_install_twice_then_uninstall(tmp_path: Path) -> None:
     gone = make("uninstall", dest)
     assert gone.returncode == 0, gone.stdout + gone.stderr
     assert not unit.exists() and not (dest / "opt/cc-daemon").exists()
+    assert not link.is_symlink()
     assert not (dest / "etc/sysusers.d/cc-daemon.conf").exists()
     assert data.read_bytes() == b"survey"
     assert config.read_text() == '[serial]\nport = "/dev/cc-autopilot"\n'

@@ -19,8 +19,8 @@ from cc_daemon.service import Daemon
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.status.client import StatusUnavailable, read_status
-from cc_daemon.status.view import watch
-from tests.daemonkit import FAST_CAST, merge
+from cc_daemon.status.view import render_text, watch
+from tests.daemonkit import FAST_CAST, merge, station
 
 
 @pytest.fixture
@@ -60,6 +60,7 @@ async def test_json_and_words(
     # The in-process daemon's own log shares stdout: the document is the JSON line.
     out = capsys.readouterr().out.splitlines()
     doc = json.loads(next(line for line in out if line.startswith("{")))
+    assert doc["daemon"]["state"] == "serving"
     assert doc["fix"]["frame"] == "P-T" and doc["fix"]["sonar_confidence_pct"] == 96
     assert doc["cast"] == {"phase": "idle", "cast_id": None, "planned_depth_m": None, "depth_m": 0}
     assert doc["winch"]["at_home"] is True and doc["winch"]["moving"] is False
@@ -122,3 +123,17 @@ def test_a_non_document_is_refused(tmp_path: Path) -> None:
         with pytest.raises(StatusUnavailable, match="not a status document"):
             read_status(path)
         thread.join()
+
+
+async def test_stopping_is_shown_while_the_probe_comes_home(
+    running: tuple[Daemon, FramePort, Path],
+) -> None:
+    daemon, port, sock = running
+    await port.send(station())
+    await asyncio.sleep(1.5)  # the probe is on its way down
+    daemon.request_shutdown()
+    await asyncio.sleep(0.3)
+    doc = await asyncio.to_thread(read_status, sock)
+    assert doc["daemon"]["state"] == "stopping"
+    assert doc["cast"]["phase"] != "idle" and doc["cast"]["depth_m"] > 0
+    assert "STOPPING (bringing the probe home first)" in render_text(doc)

@@ -41,6 +41,7 @@ class Source:
 
 def _daemon(src: Source) -> dict[str, Any]:
     return {
+        "state": "stopping" if src.snapshot.stopping else "serving",
         "version": __version__,
         "pid": os.getpid(),
         "host": socket.gethostname(),

@@ -57,7 +57,10 @@ def status_lines(doc: Document) -> list[tuple[str, str]]:
         (
             "daemon",
             f"cc-daemon {d.get('version', '?')} on {d.get('host', '?')}, pid {d.get('pid', '?')},"
-            f" up {_duration(float(d.get('uptime_s', 0)))}",
+            f" up {_duration(float(d.get('uptime_s', 0)))}"
+            + (
+                ", STOPPING (bringing the probe home first)" if d.get("state") == "stopping" else ""
+            ),
         )
     )
     link = _section(doc, "link")
