@@ -271,3 +271,16 @@ async def test_the_command_exits_1_on_a_fail_and_prints_the_fix(pi: Pi) -> None:
     checks = {c["name"]: c for c in json.loads(as_json.stdout)}
     assert as_json.returncode == 1 and checks["login console"]["level"] == "FAIL"
     assert set(checks["config"]) == {"name", "level", "detail", "fix"}
+
+
+async def test_an_unreadable_configuration_says_how_to_read_it(
+    pi: Pi, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Root reads everything, so an operator outside the group is played by os.access.
+    config = pi.root / "etc/cc-daemon/cc-daemon.toml"
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: Path(p) != config and real_access(p, m))
+    checks = await pi.checks()
+    assert list(checks) == ["config"]
+    assert checks["config"].level == "FAIL" and "not readable by you" in checks["config"].detail
+    assert "usermod -aG cc-daemon" in checks["config"].fix

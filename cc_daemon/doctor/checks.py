@@ -43,6 +43,9 @@ def load_config(system: System, config: Path | None) -> tuple[Check, Settings | 
         detail = f"no {CONFIG_PATH}: the defaults are in use (serial.port = /dev/serial0)"
         fix = "sudo make install writes the default file; edit serial.port and winch there"
         return Check("config", "WARN", detail, fix), Settings()
+    if path.exists() and not os.access(path, os.R_OK):
+        fix = "run doctor with sudo, or join the group: sudo usermod -aG cc-daemon $USER"
+        return Check("config", "FAIL", f"{path} is not readable by you", fix), None
     try:
         settings = load_settings(path)
     except ConfigError as exc:
