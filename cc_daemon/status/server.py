@@ -75,7 +75,7 @@ class StatusServer:
         self._cached: tuple[float, bytes] | None = None
         self._server: asyncio.Server | None = None
         self._inode: int | None = None
-        # What happened to clients, for the tests and the log.
+        # What happened to clients (the tests read them).
         self.served = 0
         self.refused = 0
         self.cut_off = 0
