@@ -70,7 +70,9 @@ def test_wrong_length_is_refused() -> None:
         decode(plan_blocks(DEFAULT_PARAMETERS)[0], [0, 0])
 
 
-@given(st.floats(width=32, allow_nan=False, allow_infinity=False), st.sampled_from(["big", "little"]))
+@given(
+    st.floats(width=32, allow_nan=False, allow_infinity=False), st.sampled_from(["big", "little"])
+)
 def test_round_trip(value: float, order: str) -> None:
     p = param("x", 40011, word_order=order)
     got = decode(Block(10, 2, (p,)), encode(p, value))["x"]

@@ -96,32 +96,32 @@ class SondeParameter(BaseModel):
 
 DEFAULT_PARAMETERS: tuple[SondeParameter, ...] = (
     SondeParameter(
-        name="depth", register=40011, unit="m", long_name="sonde pressure depth",
+        name="depth", modicon=40011, unit="m", long_name="sonde pressure depth",
         standard_name="depth",
     ),
     SondeParameter(
-        name="temperature", register=40029, unit="degC", long_name="water temperature",
+        name="temperature", modicon=40029, unit="degC", long_name="water temperature",
         standard_name="sea_water_temperature",
     ),
     SondeParameter(
-        name="ph", register=40031, unit="1", long_name="pH",
+        name="ph", modicon=40031, unit="1", long_name="pH",
         standard_name="sea_water_ph_reported_on_total_scale",
     ),
     SondeParameter(
-        name="do_saturation", register=40033, unit="%",
+        name="do_saturation", modicon=40033, unit="%",
         long_name="dissolved oxygen saturation",
         standard_name="fractional_saturation_of_oxygen_in_sea_water",
     ),
     SondeParameter(
-        name="do_concentration", register=40035, unit="mg/L", long_name="dissolved oxygen",
+        name="do_concentration", modicon=40035, unit="mg/L", long_name="dissolved oxygen",
         standard_name="mass_concentration_of_oxygen_in_sea_water",
     ),
     SondeParameter(
-        name="blue", register=40037, unit="RFU",
+        name="blue", modicon=40037, unit="RFU",
         long_name="phycocyanin (blue-green algae) fluorescence",
     ),
     SondeParameter(
-        name="chlorophyll", register=40039, unit="RFU", long_name="chlorophyll fluorescence",
+        name="chlorophyll", modicon=40039, unit="RFU", long_name="chlorophyll fluorescence",
     ),
 )  # fmt: skip
 
