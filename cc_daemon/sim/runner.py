@@ -177,6 +177,8 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
         sim["fail_home"] = True
     base["cast"].update(pace.cast)
     base["store"]["path"] = str(options.db_path.absolute())
+    if base["sonde"]["backend"] == "none":  # a simulated survey measures with a simulated sonde
+        base["sonde"]["backend"] = "sim"
     return Settings.model_validate(base)
 
 
