@@ -4,6 +4,7 @@
     cc-daemon --simulate [...]               a whole survey against a simulated autopilot
     cc-daemon decode ...                     read frames: hex, a capture on stdin, a live port
     cc-daemon casts | export | plot          the survey journal
+    cc-daemon sonde export | plot            the sonde's readings and profiles
     cc-daemon simulate-autopilot --port P    the simulated autopilot alone, on a real port
     cc-daemon simulate-sonde --port PATH     the simulated sonde alone, on a pty at PATH
 
@@ -101,8 +102,9 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from cc_daemon import datacli
-    from cc_daemon.sim import runner, sondecli
+    from cc_daemon import datacli, sondecli
+    from cc_daemon.sim import runner
+    from cc_daemon.sim import sondecli as simulate_sonde
 
     parser = argparse.ArgumentParser(
         prog="cc-daemon",
@@ -122,6 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     datacli.add_commands(sub)
     runner.add_commands(sub)
     sondecli.add_command(sub)
+    simulate_sonde.add_command(sub)
     return parser
 
 

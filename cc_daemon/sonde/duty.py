@@ -124,6 +124,16 @@ class SondeDuty:
                 )
                 await asyncio.to_thread(simulator.start)
                 _log.info("simulated sonde started", port=str(simulator.path))
+            # The map travels with the data: exports label units from the journal alone.
+            self._event(
+                "sonde_started",
+                backend=self.settings.sonde.backend,
+                port=self.reader.settings.port,
+                slave_id=self.settings.sonde.slave_id,
+                parameters=[
+                    p.model_dump(by_alias=True, mode="json") for p in self.settings.sonde.parameters
+                ],
+            )
             await self._sample_forever()
         finally:
             await self.reader.close()
