@@ -148,7 +148,7 @@ class SondeSettings(BaseModel):
     depth_disagreement_m: _Positive = 1.0
     bottom_contact_s: _Positive = 5.0
     bottom_contact_tolerance_m: _Positive = 0.05
-    parameters: Annotated[tuple[SondeParameter, ...], Field(min_length=1)] = DEFAULT_PARAMETERS
+    parameters: tuple[SondeParameter, ...] = DEFAULT_PARAMETERS
 
     @model_validator(mode="after")
     def _check(self) -> SondeSettings:
@@ -172,6 +172,8 @@ class SondeSettings(BaseModel):
                 "period_s",
             )
         names = [p.name for p in self.parameters]
+        if not names:
+            raise _impossible("{0} must hold at least the depth", "parameters")
         if len(set(names)) != len(names):
             raise _impossible("{0} must have a different name for each value", "parameters")
         if self.depth_parameter not in names:
