@@ -37,9 +37,20 @@ def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     export.add_argument("--cast", type=int, metavar="N", help="only cast N")
     export.add_argument("-o", "--output", type=Path, metavar="FILE", help="(default: stdout)")
     export.set_defaults(handler=_guarded)
-    plot = actions.add_parser("plot", help="one cast's profiles against depth, as a PNG")
+    plot = actions.add_parser(
+        "plot",
+        help="a cast's profiles, or the survey as a map or a section, as a PNG",
+        description="--cast N: the cast's profiles against depth. --survey --parameter P "
+        "--depth M: a map of P at M metres; --survey --parameter P --section: P along the "
+        "survey against depth.",
+    )
     plot.add_argument("--db", type=Path, metavar="PATH", help=db_help)
-    plot.add_argument("--cast", type=int, metavar="N", required=True, help="plot cast N")
+    which = plot.add_mutually_exclusive_group(required=True)
+    which.add_argument("--cast", type=int, metavar="N", help="plot cast N's profiles")
+    which.add_argument("--survey", action="store_true", help="plot the whole survey")
+    plot.add_argument("--parameter", metavar="NAME", help="with --survey: what to plot")
+    plot.add_argument("--depth", type=float, metavar="M", help="with --survey: a map at M m")
+    plot.add_argument("--section", action="store_true", help="with --survey: a section")
     plot.add_argument("-o", "--output", type=Path, metavar="FILE", required=True, help="PNG")
     plot.set_defaults(handler=_guarded)
 
@@ -74,6 +85,16 @@ def _run(args: argparse.Namespace) -> int:
     if args.cast is not None and args.cast < 1:
         print("cc-daemon sonde: --cast must be a cast id (>= 1)", file=sys.stderr)
         return 2
+    if (
+        args.sonde_action == "plot"
+        and args.survey
+        and (args.parameter is None or (args.depth is None) == (not args.section))
+    ):
+        print(
+            "cc-daemon sonde plot: --survey needs --parameter and one of --depth or --section",
+            file=sys.stderr,
+        )
+        return 2
     if args.sonde_action == "export" and args.format == "netcdf" and args.output is None:
         print("cc-daemon sonde export: --format netcdf needs -o FILE", file=sys.stderr)
         return 2
@@ -85,10 +106,20 @@ def _run(args: argparse.Namespace) -> int:
         samples = reader.sonde_samples(cast_id=args.cast)
         columns = sonde.parameter_map(reader.events(), samples)
     if args.sonde_action == "plot":
-        from cc_daemon.sondeplot import plot_profiles
+        from cc_daemon import sondeplot
 
-        plot_profiles(casts[0], samples, columns, args.output)
-        print(f"plotted cast {args.cast}'s profiles to {args.output}", file=sys.stderr)
+        if args.survey and args.section:
+            count = sondeplot.plot_section(casts, samples, columns, args.parameter, args.output)
+            noun = f"a section of {args.parameter} ({count} readings)"
+        elif args.survey:
+            count = sondeplot.plot_map(
+                casts, samples, columns, args.parameter, args.depth, args.output
+            )
+            noun = f"a map of {args.parameter} at {args.depth:g} m ({count} stations)"
+        else:
+            sondeplot.plot_profiles(casts[0], samples, columns, args.output)
+            noun = f"cast {args.cast}'s profiles"
+        print(f"plotted {noun} to {args.output}", file=sys.stderr)
         return 0
     if args.format == "netcdf":
         from cc_daemon.export import sonde_netcdf

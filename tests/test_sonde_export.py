@@ -15,6 +15,7 @@ from cc_daemon.cli import main
 from cc_daemon.protocol import StartMeasuring
 from cc_daemon.sonde.settings import DEFAULT_PARAMETERS
 from cc_daemon.store import Journal
+from cc_daemon.store.sonde import SondeSampleRecord
 
 NAMES = [p.name for p in DEFAULT_PARAMETERS]
 
@@ -135,3 +136,33 @@ def test_simulator_summary_lines(db: Path) -> None:
     assert line.startswith("cast 1 sonde: 15 readings, 2 incomplete; surface 0.00 m")
     assert "temperature 24.00 degC" in line and "bottom 3.00 m" in line
     assert "ph 8.10," in line  # pH's unit "1" is not printed
+
+
+def test_survey_map_and_section(db: Path, tmp_path: Path) -> None:
+    base = ["sonde", "plot", "--db", str(db), "--survey", "--parameter", "temperature"]
+    assert main([*base, "--depth", "2", "-o", str(tmp_path / "m.png")]) == 0
+    assert main([*base, "--section", "-o", str(tmp_path / "s.png")]) == 0
+    assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"
+    assert (tmp_path / "s.png").read_bytes()[:4] == b"\x89PNG"
+    assert main([*base, "-o", str(tmp_path / "x.png")]) == 2  # neither --depth nor --section
+    assert main([*base[:-1], "bogus", "--section", "-o", str(tmp_path / "x.png")]) == 1
+
+
+def test_value_near_and_distance() -> None:
+    from cc_daemon.sondeplot import along_track_m, value_near
+    from cc_daemon.store.reader import CastRecord
+
+    def reading(depth: float | None, value: float | None) -> SondeSampleRecord:
+        return SondeSampleRecord(1, "descending", 0.0, 0.0, True, 0.1, "ok", None, depth,
+                                 depth, False, {"t": value}, {})  # fmt: skip
+
+    rows = [reading(1.0, 10.0), reading(1.9, 12.0), reading(2.3, None), reading(None, 9.0)]
+    assert value_near(rows, "t", 2.0, 0.5) == 12.0
+    assert value_near(rows, "t", 5.0, 0.5) is None
+
+    def cast(i: int, lat: float) -> CastRecord:
+        return CastRecord(i, None, 0, 0, True, 0, lat, 0.0, 0, 0, 0, 1, "c", {}, None, None,
+                          None, None, None, 0)  # fmt: skip
+
+    first, second = along_track_m([cast(1, 40.0), cast(2, 40.001)])
+    assert first == 0.0 and second == pytest.approx(111.2, abs=0.1)
