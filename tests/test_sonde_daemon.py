@@ -142,7 +142,8 @@ async def test_bottom_contact_stops_the_descent(make_rig: Any) -> None:
         (cast,) = reader.casts()
         events = {e.kind: e.detail for e in reader.events()}
     assert cast.outcome == "completed"
-    assert cast.reached_depth_m is not None and 1.5 < cast.reached_depth_m < 3.0
+    # Stopped about bottom_contact_s after touching, far above the 6 m target.
+    assert cast.reached_depth_m is not None and 1.5 < cast.reached_depth_m < 4.0
     assert events["bottom_contact"]["sonde_depth_m"] == pytest.approx(1.5, abs=0.05)
     assert "sonde_depth_disagreement" in events
     # depth_source = "sonde": R-M says where the probe is, not how much line is out.
