@@ -1,0 +1,142 @@
+"""Which winch the daemon drives, built from `[winch]`: and the rule that a simulated
+winch never answers a real autopilot unless asked for in so many words.
+
+It owns choosing and building the backend (the simulated winch, the GPIO winch
+on the Pi's pins, or the GPIO winch on gpiozero's mock pins with a simulated
+drum), the start-up step a backend needs before casts (homing), and the gate
+`check_backend_allowed`. It never runs a motion itself.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import structlog
+
+from cc_daemon.clock import Clock
+from cc_daemon.config import Settings
+from cc_daemon.errors import ConfigError, WinchFault
+from cc_daemon.winch.base import Winch
+from cc_daemon.winch.physics import LinePhysics
+from cc_daemon.winch.simulated import SimulatedWinch
+
+_log = structlog.get_logger("cc_daemon.winch")
+
+_PREFIX = "cc-daemon: bad configuration: "
+
+
+def backend_name(settings: Settings) -> str:
+    """The backend as recorded in the journal: "sim", "gpio" or "gpio-mock"."""
+    winch = settings.winch
+    if winch.backend == "gpio" and winch.gpio.pin_factory == "mock":
+        return "gpio-mock"
+    return winch.backend
+
+
+def is_simulated(settings: Settings) -> bool:
+    """True when no real motor moves: the data are not a real cast's."""
+    return backend_name(settings) != "gpio"
+
+
+def check_backend_allowed(settings: Settings) -> None:
+    """Outside --simulate and the tests: refuse a simulated winch not asked for by name.
+
+    Raises ConfigError naming the keys (exit 2), before anything is opened.
+    """
+    if not is_simulated(settings) or settings.winch.sim.allow_outside_simulation:
+        return
+    if settings.winch.backend == "sim":
+        chosen = 'winch.backend = "sim"'
+    else:
+        chosen = 'winch.backend = "gpio" with winch.gpio.pin_factory = "mock"'
+    raise ConfigError(
+        f"{_PREFIX}{chosen}: a simulated winch would answer the autopilot for a probe that "
+        "never moves; outside --simulate it runs only with "
+        'winch.sim.allow_outside_simulation = true; on the boat set winch.backend = "gpio"'
+    )
+
+
+def simulation_warning(settings: Settings) -> str | None:
+    """What the daemon says at critical and in every STATUS when running simulated
+    outside --simulate (None when the winch is real)."""
+    if not is_simulated(settings):
+        return None
+    return (
+        f"SIMULATED WINCH ({backend_name(settings)}): no probe moves; "
+        "casts are recorded as simulated"
+    )
+
+
+def make_winch(
+    settings: Settings, clock: Clock, *, record: Callable[..., None] | None = None
+) -> Winch:
+    """The configured winch backend. The GPIO ones need a running event loop."""
+    winch = settings.winch
+    if winch.backend == "sim":
+        physics = LinePhysics(
+            speed_m_s=winch.sim.speed_m_s,
+            max_line_m=winch.max_line_m,
+            stall_at_m=winch.sim.stall_at_m,
+            fail_home=winch.sim.fail_home,
+        )
+        return SimulatedWinch(physics, clock)
+    return _make_gpio(settings, clock, record)
+
+
+def _make_gpio(settings: Settings, clock: Clock, record: Callable[..., None] | None) -> Winch:
+    from cc_daemon.winch.devices import open_devices
+    from cc_daemon.winch.gpio import GpioWinch
+
+    cfg = settings.winch.gpio
+    on_close: Callable[[], None] | None = None
+    factory: Any
+    if cfg.pin_factory == "mock":
+        from cc_daemon.winch.mockdrum import SimulatedDrum
+
+        factory = SimulatedDrum.factory_for(cfg)
+        drum = SimulatedDrum(factory, cfg, full_speed_m_s=cfg.line_speed_m_s / cfg.payout_duty)
+        on_close = drum.close
+    else:
+        factory = native_pin_factory()
+    try:
+        devices = open_devices(cfg, factory)
+    except Exception as exc:
+        raise WinchFault(f"cannot open the winch's GPIO pins: {type(exc).__name__}: {exc}") from exc
+    gpio = GpioWinch(
+        cfg,
+        devices,
+        max_line_m=settings.winch.max_line_m,
+        clock=clock,
+        record=record,
+        on_close=on_close,
+    )
+    if cfg.pin_factory == "mock":
+        drum.start()
+    return gpio
+
+
+def native_pin_factory() -> Any:
+    """gpiozero's lgpio factory (Raspberry Pi OS Bookworm, Pi 4 and Pi 5), never set globally."""
+    try:
+        from gpiozero.pins.lgpio import LGPIOFactory
+    except ImportError as exc:
+        raise WinchFault(
+            "cannot drive the GPIO winch: the lgpio library is missing "
+            "(on the Pi: sudo apt install python3-lgpio, or pip install 'cc-daemon[pi]')"
+        ) from exc
+    try:
+        return LGPIOFactory()
+    except Exception as exc:
+        raise WinchFault(
+            f"cannot open the Pi's GPIO chip: {type(exc).__name__}: {exc} "
+            "(is this a Raspberry Pi, and is the user in the gpio group?)"
+        ) from exc
+
+
+async def prepare_winch(winch: Winch) -> None:
+    """What a backend must do before casts are accepted: the GPIO winch homes."""
+    from cc_daemon.winch.gpio import GpioWinch
+
+    if isinstance(winch, GpioWinch):
+        await winch.start_up()
