@@ -75,6 +75,7 @@ FLAG_NAMES: Mapping[tuple[str, ...], str] = {
     ("serial", "port"): "--port",
     ("serial", "baudrate"): "--baudrate",
     ("winch", "backend"): "--winch",
+    ("winch", "gpio", "pin_factory"): "--winch",
     ("store", "path"): "--db",
     ("log", "format"): "--log-format",
     ("log", "level"): "--log-level",

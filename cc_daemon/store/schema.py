@@ -106,8 +106,19 @@ _V2: tuple[str, ...] = (
     "CREATE INDEX fixes_by_session ON fixes(session_id, mono_s)",
 )
 
+# Version 3: which winch produced the data, and whether it was simulated (no
+# probe moved), on each session and each cast, so a simulated cast can never be
+# taken for a real one. NULL on older rows: not recorded (before version 3 only
+# the simulated winch existed, but files may have been copied between runs).
+_V3: tuple[str, ...] = (
+    "ALTER TABLE sessions ADD COLUMN winch_backend TEXT",
+    "ALTER TABLE sessions ADD COLUMN simulated INTEGER",
+    "ALTER TABLE casts ADD COLUMN winch_backend TEXT",
+    "ALTER TABLE casts ADD COLUMN simulated INTEGER",
+)
+
 # MIGRATIONS[n] takes a file from version n to version n + 1.
-MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2)
+MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, _V3)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 

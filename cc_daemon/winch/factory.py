@@ -1,10 +1,9 @@
-"""Which winch the daemon drives, built from `[winch]`: and the rule that a simulated
-winch never answers a real autopilot unless asked for in so many words.
+"""Which winch the daemon drives, built from `[winch]`.
 
 It owns choosing and building the backend (the simulated winch, the GPIO winch
 on the Pi's pins, or the GPIO winch on gpiozero's mock pins with a simulated
-drum), the start-up step a backend needs before casts (homing), and the gate
-`check_backend_allowed`. It never runs a motion itself.
+drum) and the start-up step a backend needs before casts (homing). Whether a
+simulated one may run is `cc_daemon.simgate`'s rule. It never runs a motion.
 """
 
 from __future__ import annotations
@@ -16,56 +15,12 @@ import structlog
 
 from cc_daemon.clock import Clock
 from cc_daemon.config import Settings
-from cc_daemon.errors import ConfigError, WinchFault
+from cc_daemon.errors import WinchFault
 from cc_daemon.winch.base import Winch
 from cc_daemon.winch.physics import LinePhysics
 from cc_daemon.winch.simulated import SimulatedWinch
 
 _log = structlog.get_logger("cc_daemon.winch")
-
-_PREFIX = "cc-daemon: bad configuration: "
-
-
-def backend_name(settings: Settings) -> str:
-    """The backend as recorded in the journal: "sim", "gpio" or "gpio-mock"."""
-    winch = settings.winch
-    if winch.backend == "gpio" and winch.gpio.pin_factory == "mock":
-        return "gpio-mock"
-    return winch.backend
-
-
-def is_simulated(settings: Settings) -> bool:
-    """True when no real motor moves: the data are not a real cast's."""
-    return backend_name(settings) != "gpio"
-
-
-def check_backend_allowed(settings: Settings) -> None:
-    """Outside --simulate and the tests: refuse a simulated winch not asked for by name.
-
-    Raises ConfigError naming the keys (exit 2), before anything is opened.
-    """
-    if not is_simulated(settings) or settings.winch.sim.allow_outside_simulation:
-        return
-    if settings.winch.backend == "sim":
-        chosen = 'winch.backend = "sim"'
-    else:
-        chosen = 'winch.backend = "gpio" with winch.gpio.pin_factory = "mock"'
-    raise ConfigError(
-        f"{_PREFIX}{chosen}: a simulated winch would answer the autopilot for a probe that "
-        "never moves; outside --simulate it runs only with "
-        'winch.sim.allow_outside_simulation = true; on the boat set winch.backend = "gpio"'
-    )
-
-
-def simulation_warning(settings: Settings) -> str | None:
-    """What the daemon says at critical and in every STATUS when running simulated
-    outside --simulate (None when the winch is real)."""
-    if not is_simulated(settings):
-        return None
-    return (
-        f"SIMULATED WINCH ({backend_name(settings)}): no probe moves; "
-        "casts are recorded as simulated"
-    )
 
 
 def make_winch(
@@ -134,9 +89,12 @@ def native_pin_factory() -> Any:
         ) from exc
 
 
-async def prepare_winch(winch: Winch) -> None:
-    """What a backend must do before casts are accepted: the GPIO winch homes."""
+async def prepare_winch(winch: Winch, announce: Callable[[], None] | None = None) -> None:
+    """What a backend must do before casts are accepted: the GPIO winch homes a probe
+    found down (`announce` is called first, to say so)."""
     from cc_daemon.winch.gpio import GpioWinch
 
     if isinstance(winch, GpioWinch):
+        if not winch.at_home and announce is not None:
+            announce()
         await winch.start_up()
