@@ -230,18 +230,25 @@ class GpioWinch:
         _log.critical("winch homing failed: the probe is not home", fault=self._fault)
         return False
 
-    def jog(self, direction: Direction, duty: float | None = None) -> None:
-        """Run the motor by hand (calibration): pay out or haul in until `stop`.
+    def jog(self, direction: Direction, *, by_m: float | None = None) -> None:
+        """Run the motor by hand (calibration): pay out or haul in until `stop`, or
+        for `by_m` metres by the count.
 
-        The line limits, the switch and the stall rules still apply; the homing
-        requirement does not (this is how an operator homes it by hand)."""
+        The end of the line, the switch and the stall rules still apply; the
+        homing requirement does not (this is how an operator homes it by hand)."""
+        self._halt()
+        self._fault = None
         if direction is Direction.STOPPED:
-            self.stop()
+            self._changed.set()
             return
         with self._lock:
             self._goal = _Goal.TARGET
-            self._target_count = self._max_count if direction is Direction.PAY_OUT else -(1 << 30)
-        self._start_motor(direction, duty, homing=False)
+            if by_m is not None:
+                target = self._edge() + int(direction) * max(1, self.drum.count_at(by_m))
+            else:
+                target = self._max_count if direction is Direction.PAY_OUT else -(1 << 30)
+            self._target_count = min(target, self._max_count)
+        self._start_motor(direction, None, homing=False)
 
     # ------------------------------------------------------------ starting a motion
 

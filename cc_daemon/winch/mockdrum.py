@@ -122,6 +122,7 @@ class _MockMCP3008(MockSPIDevice):  # type: ignore[misc]
 @dataclass
 class DrumFaults:
     jam_at_m: float | None = None  # the drum stops turning here on the way out
+    jam_in_at_m: float | None = None  # ... or here on the way in (a line caught on the way up)
     snag_at_m: float | None = None  # the switch closes here on the way out
     switch_stuck_open: bool = False  # the switch never closes
     lose_every: int = 0  # every n-th pulse paying out is lost (a slipping line), 0 = none
@@ -239,8 +240,10 @@ class SimulatedDrum:
         self._drive_switch(line, direction)
 
     def _jammed(self, direction: int) -> bool:
-        jam = self.faults.jam_at_m
-        return direction > 0 and jam is not None and self._line >= jam
+        out, into = self.faults.jam_at_m, self.faults.jam_in_at_m
+        if direction > 0:
+            return out is not None and self._line >= out
+        return into is not None and self._line <= into
 
     def _pulse(self, step: int) -> None:
         self.pulses_sent += 1
