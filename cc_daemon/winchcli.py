@@ -102,6 +102,7 @@ async def _drive(
         print(_line(winch), file=out, flush=True)
         if action == "status":
             return EXIT_OK
+        run: asyncio.Future[Any]
         if action == "home":
             run = asyncio.ensure_future(winch.home(reason="operator: cc-daemon winch home"))
         else:

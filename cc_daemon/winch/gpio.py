@@ -300,7 +300,9 @@ class GpioWinch:
             duty=self._duty,
             line_m=round(self.line_m, 3),
             goal=self._goal.value if self._goal else None,
-            target_m=round(self.drum.line_m(self._target_count), 3),
+            target_m=round(self.drum.line_m(self._target_count), 3)
+            if abs(self._target_count) <= self._max_count
+            else None,
         )
         self._schedule_tick()
 
