@@ -10,6 +10,8 @@ import csv
 import io
 import json
 import sqlite3
+import subprocess
+import sys
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -249,3 +251,40 @@ def test_the_winch_command_jogs_and_prints_line_out(
     assert "supply 12.00 V" in capsys.readouterr().out
     assert main(["winch", "--mock", "up", "--seconds", "-1"]) == 2
     assert "--seconds -1: allowed > 0" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- --simulate --winch gpio-mock
+
+
+def test_simulate_runs_a_survey_on_the_gpio_winch_with_mock_pins(tmp_path: Path) -> None:
+    db = tmp_path / "demo.db"
+    env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("CC_DAEMON_")}
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "cc_daemon",
+            "--simulate",
+            "--winch",
+            "gpio-mock",
+            "--stations",
+            "1",
+            "--plain",
+            "--db",
+            str(db),
+        ],
+        check=False,
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=50,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr
+    assert "SURVEY OK" in done.stdout
+    assert "winch home: limit switch closed" in done.stdout
+    with JournalReader(db) as reader:
+        casts = reader.casts()
+    assert [(c.outcome, c.winch_backend, c.simulated) for c in casts] == [
+        ("completed", "gpio-mock", True)
+    ]
