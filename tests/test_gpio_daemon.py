@@ -9,6 +9,7 @@ import contextlib
 import csv
 import io
 import json
+import socket
 import sqlite3
 import subprocess
 import sys
@@ -31,6 +32,7 @@ from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.simgate import backend_name, check_backend_allowed, simulation_warning
 from cc_daemon.store import Journal, JournalReader
+from cc_daemon.systemd import SystemdNotifier
 from cc_daemon.winch.mockdrum import DrumFaults
 from tests.daemonkit import FAST_CAST, merge, station
 from tests.gpiokit import GpioRig, gpio_rig
@@ -288,3 +290,62 @@ def test_simulate_runs_a_survey_on_the_gpio_winch_with_mock_pins(tmp_path: Path)
     assert [(c.outcome, c.winch_backend, c.simulated) for c in casts] == [
         ("completed", "gpio-mock", True)
     ]
+
+
+async def test_the_daemon_homes_a_probe_left_down_before_it_says_ready(tmp_path: Path) -> None:
+    sock_path = tmp_path / "notify.sock"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as server:
+        server.bind(str(sock_path))
+        server.settimeout(10)
+        async with gpio_rig(line_m=1.2, start_up=False) as rig:
+            assert not rig.winch.status().at_home
+            daemon = Daemon(
+                _settings(tmp_path, tmp_path / "no-such-tty"),
+                winch=rig.winch,
+                notifier=SystemdNotifier(str(sock_path)),
+            )
+            task = asyncio.create_task(daemon.run())
+            first = await asyncio.to_thread(server.recv, 1024)
+            second = await asyncio.to_thread(server.recv, 1024)
+            home_when_ready = rig.winch.status().at_home
+            daemon.request_shutdown()
+            assert await asyncio.wait_for(task, 10) == 0
+    assert first.endswith(b"homing the winch")
+    assert second.startswith(b"READY=1\n")
+    assert home_when_ready and rig.drum.line_m <= 0.05
+    assert rig.kinds()[:2] == ["winch_homing", "winch_homed"]
+
+
+async def test_a_stuck_daemon_loop_stops_the_motor_and_the_fault_is_journaled(
+    tmp_path: Path,
+) -> None:
+    with PtyPair(tmp_path / "tty") as pty:
+        settings = _settings(tmp_path, pty.path)
+        gpio = {"pin_factory": "mock", "loop_watchdog_s": 0.3, "line_speed_m_s": 2.0}
+        settings = Settings.model_validate(merge(settings.model_dump(), {"winch": {"gpio": gpio}}))
+        daemon = Daemon(settings)  # the daemon builds the mock winch and its drum itself
+        port = await FramePort.over_fd(pty.master_fd)
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await port.send(station())
+        while (got := await port.receive(5)) is not None:
+            if isinstance(got.message, DepthReport) and got.message.depth_mm > 500:
+                break
+        time.sleep(0.8)  # noqa: ASYNC251 - the daemon's loop is stuck, the motor runs on
+        frames = []
+        while (got := await port.receive(10)) is not None:
+            frames.append(got.message)
+            if isinstance(got.message, Finished):
+                break
+        daemon.request_shutdown()
+        assert await asyncio.wait_for(task, 10) == 0
+        await port.close()
+    assert isinstance(frames[-1], Finished) and frames[-1].depth_mm == 0  # aborted, home
+    with sqlite3.connect(tmp_path / "j.db") as db:
+        faults = [
+            json.loads(d)["fault"]
+            for (d,) in db.execute("SELECT detail_json FROM events WHERE kind = 'winch_fault'")
+        ]
+        outcome = db.execute("SELECT outcome FROM casts").fetchone()[0]
+    assert any(f.startswith("loop watchdog: the event loop was silent") for f in faults)
+    assert outcome == "aborted"

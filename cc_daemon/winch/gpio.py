@@ -481,6 +481,15 @@ class GpioWinch:
 
     def _switch_seen(self, closed: bool, running: Direction) -> None:
         if not closed:
+            if running is Direction.STOPPED and self._homed:
+                # Nobody is paying out, yet the probe left the block: it slipped, or
+                # someone pulled it. The next station brings it home first.
+                _log.warning(
+                    "winch count and limit switch disagree: the switch opened with the "
+                    "motor stopped",
+                    counted_line_m=round(self.line_m, 3),
+                    switch="open",
+                )
             self._changed.set()
             return
         line = self.line_m
