@@ -67,6 +67,17 @@ async def test_a_cast_comes_home_at_the_switch_and_the_count_is_zero() -> None:
         assert "winch_count_corrected" not in rig.kinds()
 
 
+async def test_a_switch_to_ground_and_a_pulled_up_sensor_work_the_same() -> None:
+    async with gpio_rig(switch_pull="up", switch_active="low", pulse_pull="up") as rig:
+        assert rig.winch.status().at_home
+        rig.winch.move_to(1.0)
+        await rig.settle()
+        assert abs(rig.winch.status().depth_m - 1.0) <= MPP / 2
+        rig.winch.move_to(0.0)
+        await rig.settle()
+        assert rig.winch.status().at_home and rig.winch.pulse_count == 0
+
+
 async def test_quadrature_encoder_counts_both_ways() -> None:
     async with gpio_rig(counter="quadrature") as rig:
         rig.winch.move_to(1.2)

@@ -251,8 +251,9 @@ class SimulatedDrum:
         if step > 0 and lose and self.pulses_sent % lose == 0:
             return
         if self._b is None:
-            self._set(self._a, True)
-            self._set(self._a, False)
+            idle = self.cfg.pulse_pull == "up"  # pulled up: a pulse is a dip to low
+            self._set(self._a, not idle)
+            self._set(self._a, idle)
             return
         # Four transitions of the Gray code per step, forwards or backwards.
         for _ in range(4):
