@@ -149,7 +149,7 @@ _Positive = Annotated[float, Field(gt=0)]
 _NonNegative = Annotated[float, Field(ge=0)]
 
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
-# the README's configuration reference; tests keep both in step with these models.
+# docs/configuration.md; tests keep both in step with these models.
 
 
 class SerialSettings(BaseModel):

@@ -20,8 +20,8 @@ from cc_daemon.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE_TOML = ROOT / "config" / "cc-daemon.toml"
-# The README's configuration reference; repointed to README.md once merged there.
-CONFIG_REFERENCE = ROOT / "README.md"
+# The configuration reference (docs/configuration.md): its key table and examples.
+CONFIG_REFERENCE = ROOT / "docs" / "configuration.md"
 PREFIX = "cc-daemon: bad configuration: "
 RATES = "1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600"
 LEVELS = '"debug", "info", "warning", "error" or "critical"'
