@@ -504,16 +504,12 @@ def _leaf_names(section: dict[str, Any], prefix: str = "") -> Iterator[str]:
 
 
 def reference_rows() -> dict[str, str]:
-    """key -> default column of the reference's key tables: the README's, and the
-    docs/ pages' that document a section of their own."""
+    """key -> default column of the reference's key table."""
     rows: dict[str, str] = {}
-    for page in (CONFIG_REFERENCE, *sorted((ROOT / "docs").glob("*.md"))):
-        for line in page.read_text(encoding="utf-8").splitlines():
-            row = re.match(r"\| `([\w.]+)` \| ([^|]*) \|", line)
-            if row and "." in row[1]:
-                default = row[2].strip()
-                # Documented twice (a section moving to its own page): the same default.
-                assert rows.setdefault(row[1], default) == default, (page.name, row[1])
+    for line in CONFIG_REFERENCE.read_text(encoding="utf-8").splitlines():
+        row = re.match(r"\| `([\w.]+)` \| ([^|]*) \|", line)
+        if row and "." in row[1]:
+            rows[row[1]] = row[2].strip()
     return rows
 
 
