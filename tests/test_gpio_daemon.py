@@ -349,3 +349,25 @@ async def test_a_stuck_daemon_loop_stops_the_motor_and_the_fault_is_journaled(
         outcome = db.execute("SELECT outcome FROM casts").fetchone()[0]
     assert any(f.startswith("loop watchdog: the event loop was silent") for f in faults)
     assert outcome == "aborted"
+
+
+async def test_the_simulated_winchs_fault_keys_jam_the_mock_drum(tmp_path: Path) -> None:
+    with PtyPair(tmp_path / "tty") as pty:
+        settings = _settings(tmp_path, pty.path)
+        extra = {
+            "gpio": {"line_speed_m_s": 2.0, "stall_timeout_s": 0.5},
+            "sim": {"stall_at_m": 1.0},
+        }
+        settings = Settings.model_validate(merge(settings.model_dump(), {"winch": extra}))
+        daemon = Daemon(settings)
+        port = await FramePort.over_fd(pty.master_fd)
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        frames = await Boat(daemon, port, task).cast()
+        daemon.request_shutdown()
+        assert await asyncio.wait_for(task, 10) == 0
+        await port.close()
+    last = frames[-1].message
+    assert isinstance(last, Finished) and last.depth_mm == 0
+    [(outcome, reason, backend, _)] = _cast_rows(tmp_path)
+    assert outcome == "aborted" and "stall: no drum pulse" in reason and backend == "gpio-mock"

@@ -47,10 +47,15 @@ def _make_gpio(settings: Settings, clock: Clock, record: Callable[..., None] | N
     on_close: Callable[[], None] | None = None
     factory: Any
     if cfg.pin_factory == "mock":
-        from cc_daemon.winch.mockdrum import SimulatedDrum
+        from cc_daemon.winch.mockdrum import DrumFaults, SimulatedDrum
 
+        # The simulated winch's fault injection works on the mock drum too
+        # (--simulate --winch gpio-mock --winch-stall / --winch-fail-home).
+        sim = settings.winch.sim
+        faults = DrumFaults(jam_at_m=sim.stall_at_m, jam_in_at_m=0.5 if sim.fail_home else None)
         factory = SimulatedDrum.factory_for(cfg)
-        drum = SimulatedDrum(factory, cfg, full_speed_m_s=cfg.line_speed_m_s / cfg.payout_duty)
+        speed = cfg.line_speed_m_s / cfg.payout_duty
+        drum = SimulatedDrum(factory, cfg, full_speed_m_s=speed, faults=faults)
         on_close = drum.close
     else:
         factory = native_pin_factory()
