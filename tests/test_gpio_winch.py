@@ -297,3 +297,32 @@ def test_the_motor_is_switched_off_at_interpreter_exit() -> None:
     assert done.returncode == 0, done.stderr
     assert "running (1, " in done.stdout
     assert "at exit (0, 0.0)" in done.stdout
+
+
+async def test_the_switch_bouncing_as_the_probe_leaves_is_not_a_snag() -> None:
+    async with gpio_rig() as rig:
+        switch = rig.drum.factory.pin(rig.winch._cfg.switch_pin)
+        rig.drum.close()  # the test moves the pins by hand now
+        rig.winch.jog(Direction.PAY_OUT)
+        switch.drive_low()  # the probe leaves the block...
+        switch.drive_high()  # ...the lever bounces shut...
+        switch.drive_low()  # ...and open again, all within the first pulse
+        await asyncio.sleep(0.05)
+        status = rig.winch.status()
+        assert status.moving and status.fault is None
+        rig.winch.stop()
+
+
+async def test_the_probe_slipping_off_the_block_while_idle_is_logged() -> None:
+    async with gpio_rig() as rig:
+        switch = rig.drum.factory.pin(rig.winch._cfg.switch_pin)
+        rig.drum.close()
+        with structlog.testing.capture_logs() as logs:
+            switch.drive_low()
+            switch.drive_high()  # a bounce: not news
+            await asyncio.sleep(0.2)
+            switch.drive_low()  # it stays open
+            await asyncio.sleep(0.2)
+        slipped = [e for e in logs if "opened with the motor stopped" in e["event"]]
+        assert len(slipped) == 1 and slipped[0]["log_level"] == "warning"
+        assert not rig.winch.status().at_home

@@ -45,6 +45,7 @@ _log = structlog.get_logger("cc_daemon.winch.gpio")
 TICK_S = 0.05  # safety checks, ramp steps and watchdog feeding while the motor runs
 RAMP_FLOOR = 0.3  # the soft start begins at this fraction of the duty
 APPROACH_FRACTION = 0.5  # within approach_m of the target the duty is halved
+SWITCH_SETTLE_S = 0.1  # a switch that opens by itself must stay open this long to be news
 
 EventSink = Callable[..., None]  # (kind, **detail): the journal's record_event
 
@@ -74,7 +75,8 @@ class GpioWinch:
         self._loop = asyncio.get_running_loop()
         self.drum = Drum(cfg.pulses_per_rev, cfg.drum_diameter_m)
         self.max_line_m = max_line_m
-        self._max_count = self.drum.count_at(max_line_m)
+        # Rounded down: the last pulse allowed is never past the end of the line.
+        self._max_count = math.floor(max_line_m / self.drum.metres_per_pulse + 1e-9)
         self._current = CurrentSensor(cfg.adc_vref_v, cfg.current_zero_v, cfg.current_v_per_a)
         self._divider = VoltageDivider(cfg.adc_vref_v, cfg.divider_r1_ohm, cfg.divider_r2_ohm)
         self._limits = Limits(cfg.stall_timeout_s, cfg.max_current_a, cfg.overcurrent_s)
@@ -424,7 +426,11 @@ class GpioWinch:
     def _switch_closed_thread(self) -> None:
         with self._lock:
             running = self._bridge.direction
-            if running is not Direction.STOPPED:
+            if running is Direction.PAY_OUT and self._edge() <= 0:
+                # Still within the first pulse of leaving the block: the switch
+                # bouncing open, not a snag.
+                running = Direction.STOPPED
+            elif running is not Direction.STOPPED:
                 self._bridge.stop()
         self._tell_loop(self._switch_seen, True, running)
 
@@ -482,14 +488,7 @@ class GpioWinch:
     def _switch_seen(self, closed: bool, running: Direction) -> None:
         if not closed:
             if running is Direction.STOPPED and self._homed:
-                # Nobody is paying out, yet the probe left the block: it slipped, or
-                # someone pulled it. The next station brings it home first.
-                _log.warning(
-                    "winch count and limit switch disagree: the switch opened with the "
-                    "motor stopped",
-                    counted_line_m=round(self.line_m, 3),
-                    switch="open",
-                )
+                self._loop.call_later(SWITCH_SETTLE_S, self._opened_while_stopped)
             self._changed.set()
             return
         line = self.line_m
@@ -506,6 +505,17 @@ class GpioWinch:
             self._halt()
             _log.info("winch home: limit switch closed", counted_line_m=round(line, 3))
         self._changed.set()
+
+    def _opened_while_stopped(self) -> None:
+        if self.at_home or self._bridge.direction is not Direction.STOPPED:
+            return  # a bounce, or a motion began
+        # Nobody is paying out, yet the probe left the block: it slipped, or someone
+        # pulled it. The next station brings it home first (a recovery cast).
+        _log.warning(
+            "winch count and limit switch disagree: the switch opened with the motor stopped",
+            counted_line_m=round(self.line_m, 3),
+            switch="open",
+        )
 
     def _zero_at_switch(self) -> None:
         with self._lock:
