@@ -13,7 +13,7 @@ import importlib.util
 import sys
 import traceback
 
-MODULES = ["parser", "journal", "daemon", "winch"]
+MODULES = ["parser", "journal", "daemon", "status_flood", "winch"]
 
 
 def main() -> int:
