@@ -40,7 +40,6 @@ from cc_daemon.cast.stations import StationMemory
 from cc_daemon.cast.timestamps import AutopilotTime
 from cc_daemon.clock import Clock, SystemClock
 from cc_daemon.config import Settings
-from cc_daemon.errors import ConfigError
 from cc_daemon.link import SerialLink
 from cc_daemon.logsetup import flush_rate_limited
 from cc_daemon.protocol import (
@@ -57,12 +56,12 @@ from cc_daemon.protocol import (
     encode,
 )
 from cc_daemon.protocol.messages import CcMessage, DepthReport
+from cc_daemon.simgate import backend_name, is_simulated, simulation_warning
 from cc_daemon.sonde.duty import SondeDuty, make_sonde
 from cc_daemon.store import Journal, default_store_path
 from cc_daemon.systemd import SystemdNotifier
 from cc_daemon.winch.base import Winch, WinchStatus
-from cc_daemon.winch.physics import LinePhysics
-from cc_daemon.winch.simulated import SimulatedWinch
+from cc_daemon.winch.factory import make_winch, prepare_winch
 
 _log = structlog.get_logger("cc_daemon.service")
 
@@ -71,23 +70,6 @@ SHUTDOWN_EXTEND_S = 30.0  # each EXTEND_TIMEOUT_USEC asks systemd for this much 
 CORRUPT_SUMMARY_EVERY = 10  # ticks
 EXIT_OK = 0
 EXIT_PROBE_MAY_BE_DOWN = 130
-
-
-def make_winch(settings: Settings, clock: Clock) -> Winch:
-    """The configured winch backend (validated before any hardware is touched)."""
-    winch = settings.winch
-    if winch.backend == "sim":
-        physics = LinePhysics(
-            speed_m_s=winch.sim.speed_m_s,
-            max_line_m=winch.max_line_m,
-            stall_at_m=winch.sim.stall_at_m,
-            fail_home=winch.sim.fail_home,
-        )
-        return SimulatedWinch(physics, clock)
-    raise ConfigError(
-        f"cc-daemon: bad configuration: winch.backend = {winch.backend!r}: the GPIO backend "
-        "is not part of this build yet; allowed: 'sim'"
-    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,12 +122,17 @@ class Daemon:
         winch: Winch | None = None,
         journal: Journal | None = None,
         notifier: SystemdNotifier | None = None,
+        simulation: bool = False,
     ) -> None:
+        """`simulation`: run by `--simulate` (a simulated winch is expected, not announced)."""
         self.settings = settings
         self._clock = clock or SystemClock()
         self._winch = winch
         self._journal = journal
         self._notifier = notifier or SystemdNotifier.from_environment()
+        self._simulated_note = None if simulation else simulation_warning(settings)
+        if self._simulated_note:
+            self._notifier.status_prefix = self._simulated_note + " | "
         self.ready = asyncio.Event()
         self._shutdown = asyncio.Event()
         self._shutting_down = False
@@ -186,11 +173,17 @@ class Daemon:
 
     async def run(self) -> int:
         """Serve until shut down; return the process exit status."""
+        if self._simulated_note:
+            _log.critical(self._simulated_note + ": running outside --simulate as configured")
         if self._winch is None:
-            self._winch = make_winch(self.settings, self._clock)
+            self._winch = make_winch(self.settings, self._clock, record=self._journal_event)
         if self._journal is None:
             path = self.settings.store.path or default_store_path()
-            self._journal = Journal(path)
+            self._journal = Journal(
+                path,
+                winch_backend=backend_name(self.settings),
+                simulated=is_simulated(self.settings),
+            )
             for cast_id in self._journal.open():
                 _log.warning("cast left unfinished by a previous run", cast_id=cast_id)
         self._journal.record_event("daemon_started", port=self.settings.serial.port)
@@ -206,6 +199,10 @@ class Daemon:
             store=str(self._journal.path),
         )
         try:
+            # A probe left down (a crash, a power cut) comes home before READY.
+            await prepare_winch(
+                self._winch, lambda: self._notifier.notify("STATUS=homing the winch")
+            )
             async with asyncio.TaskGroup() as tasks:
                 self._tasks = tasks
                 link_task = tasks.create_task(

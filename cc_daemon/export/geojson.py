@@ -48,6 +48,8 @@ def _station(cast: CastRecord) -> dict[str, Any]:
             "water_depth_m": cast.water_depth_m,
             "sonar_confidence_pct": cast.sonar_confidence_pct,
             "samples": cast.samples,
+            "winch_backend": cast.winch_backend,
+            "simulated": cast.simulated,
         },
     }
 

@@ -168,7 +168,13 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
     pace = options.chosen_pace
     base = (options.settings or Settings()).model_dump(mode="python")
     base["serial"]["port"] = str(port)
-    base["winch"]["backend"] = "sim"
+    gpio = base["winch"]["gpio"]
+    if base["winch"]["backend"] == "gpio" and gpio["pin_factory"] == "mock":
+        # --winch gpio-mock: the real GPIO winch code on mock pins and a simulated drum.
+        if pace.winch_speed_m_s is not None:
+            gpio["line_speed_m_s"] = pace.winch_speed_m_s
+    else:
+        base["winch"]["backend"] = "sim"  # never the boat's real winch from a laptop demo
     sim = base["winch"]["sim"]
     if pace.winch_speed_m_s is not None:
         sim["speed_m_s"] = pace.winch_speed_m_s
@@ -791,7 +797,7 @@ async def run_simulation(options: SimOptions) -> int:
     ):
         settings = daemon_settings(options, pair.path)
         autopilot = Autopilot(mission, autopilot_config(options, settings))
-        daemon = Daemon(settings)
+        daemon = Daemon(settings, simulation=True)
         run = _Run(
             mission,
             autopilot,
@@ -894,7 +900,9 @@ def _shutdown_grace_s(settings: Settings, *, gave_up: bool) -> float:
     the autopilot already gave up waiting for R-F (a stranded probe stays down)."""
     if gave_up:
         return 5.0
-    return settings.winch.max_line_m / settings.winch.sim.speed_m_s + 10.0
+    winch = settings.winch
+    speed = winch.gpio.line_speed_m_s if winch.backend == "gpio" else winch.sim.speed_m_s
+    return winch.max_line_m / speed + 10.0
 
 
 async def _wait_ready(daemon: Daemon, task: asyncio.Task[int]) -> str | None:

@@ -52,7 +52,8 @@ _INSERT_FIX = (
 _INSERT_CAST = (
     "INSERT INTO casts (id, session_id, start_mono_s, start_wall_s, start_clock_synced,"
     " ap_timestamp_s, lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct,"
-    " planned_depth_m, mode, plan_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
+    " planned_depth_m, mode, plan_json, winch_backend, simulated)"
+    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
 )
 _INSERT_SAMPLE = (
     "INSERT INTO samples (cast_id, mono_s, wall_s, clock_synced, depth_m, phase)"
@@ -112,6 +113,8 @@ _SPILL_LAYOUT: dict[int, tuple[str, tuple[str, ...]]] = {
             "planned_depth_m",
             "mode",
             "plan_json",
+            "winch_backend",
+            "simulated",
         ),
     ),
     _SAMPLE: ("samples", ("cast_id", "mono_s", "wall_s", "clock_synced", "depth_m", "phase")),
@@ -187,13 +190,19 @@ class Journal(BufferedWriter):
         timesync_flag: Path = TIMESYNC_FLAG,
         max_buffered_rows: int = 100_000,
         on_connect: Callable[[sqlite3.Connection], None] | None = None,
+        winch_backend: str | None = None,
+        simulated: bool | None = None,
     ) -> None:
         """`on_connect` is called with every new connection before use (tests use it
-        to set `PRAGMA max_page_count`, which makes SQLite report a full disk)."""
+        to set `PRAGMA max_page_count`, which makes SQLite report a full disk).
+        `winch_backend` and `simulated` go on the session and on every cast (None:
+        not recorded)."""
         super().__init__(
             path, wall=wall, max_buffered_rows=max_buffered_rows, on_connect=on_connect
         )
         self._monotonic = monotonic
+        self._winch_backend = winch_backend
+        self._simulated = None if simulated is None else int(simulated)
         self._timesync_flag = str(timesync_flag)
         self._next_cast_id = 1  # guarded by _lock: the writer raises it past the file's
 
@@ -259,7 +268,8 @@ class Journal(BufferedWriter):
             except (TypeError, ValueError) as exc:  # a circular plan, say
                 plan_json = _to_json({"unserialisable_plan": repr(exc)})
             row = (_CAST, cast_id, mono, self._wall(), self._clock_synced(mono), *station)
-            self._append((*row, planned_depth_m, mode, plan_json))
+            winch = (self._winch_backend, self._simulated)
+            self._append((*row, planned_depth_m, mode, plan_json, *winch))
         except Exception as exc:
             self._errors.error("start_cast", "journal could not record a cast", error=repr(exc))
         return cast_id
@@ -434,7 +444,7 @@ class Journal(BufferedWriter):
         mono = self._monotonic()
         cursor = conn.execute(
             "INSERT INTO sessions (boot_id, pid, software, opened_mono_s, opened_wall_s,"
-            " clock_synced) VALUES (?, ?, ?, ?, ?, ?)",
+            " clock_synced, winch_backend, simulated) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
             (
                 _boot_id(),
                 os.getpid(),
@@ -442,6 +452,8 @@ class Journal(BufferedWriter):
                 mono,
                 self._wall(),
                 1 if os.path.exists(self._timesync_flag) else 0,
+                self._winch_backend,
+                self._simulated,
             ),
         )
         self._session_id = cursor.lastrowid

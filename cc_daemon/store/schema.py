@@ -107,9 +107,21 @@ _V2: tuple[str, ...] = (
     "CREATE INDEX fixes_by_session ON fixes(session_id, mono_s)",
 )
 
+# Version 4: which winch produced the data, and whether it was simulated (no
+# probe moved), on each session and each cast, so a simulated cast can never be
+# taken for a real one. NULL on older rows: not recorded (before version 4 only
+# the simulated winch existed, but files may have been copied between runs).
+_V4: tuple[str, ...] = (
+    "ALTER TABLE sessions ADD COLUMN winch_backend TEXT",
+    "ALTER TABLE sessions ADD COLUMN simulated INTEGER",
+    "ALTER TABLE casts ADD COLUMN winch_backend TEXT",
+    "ALTER TABLE casts ADD COLUMN simulated INTEGER",
+)
+
 # MIGRATIONS[n] takes a file from version n to version n + 1.
-# Version 3: the sonde's readings (self-contained; see `store.sonde`).
-MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, sonde.MIGRATION)
+# Version 3: the sonde's readings (self-contained; see `store.sonde`); version 4:
+# the winch backend and whether the data are simulated.
+MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, sonde.MIGRATION, _V4)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
