@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import random
 from bisect import bisect_left
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -51,7 +52,7 @@ from cc_daemon.protocol import (
     StartMeasuring,
     Telemetry,
 )
-from cc_daemon.sim.mission import ORIGIN_ALT_M, Mission, Point, Station
+from cc_daemon.sim.mission import ORIGIN_ALT_M, Mission, Point, SonarReading, Station
 
 
 class Phase(StrEnum):
@@ -213,6 +214,8 @@ class Autopilot:
         self._flips_out: list[float] = []  # ... and on ours
         self._last_heard_at = 0.0  # the last frame (good or corrupt) from the daemon
         self.finished = False
+        # The sonar module's latest reading (`sim.sonar_chain`); None: made up from the field.
+        self.sonar: Callable[[], SonarReading] | None = None
 
     # ------------------------------------------------------------ queries
 
@@ -384,7 +387,10 @@ class Autopilot:
 
     def _fix(self, *, moving: bool) -> tuple[int, int, int, int, int]:
         lon, lat = self._position.e7
-        sonar = self.mission.sonar(self._position, moving=moving, rng=self._rng)
+        if self.sonar is not None:
+            sonar = self.sonar()
+        else:
+            sonar = self.mission.sonar(self._position, moving=moving, rng=self._rng)
         alt_mm = round((ORIGIN_ALT_M + self._rng.uniform(-0.03, 0.03)) * 1000)  # a ripple
         return lon, lat, alt_mm, sonar.distance_mm, sonar.confidence_pct
 
