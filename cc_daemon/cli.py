@@ -5,6 +5,7 @@
     cc-daemon decode ...                     read frames: hex, a capture on stdin, a live port
     cc-daemon casts | export | plot          the survey journal
     cc-daemon simulate-autopilot --port P    the simulated autopilot alone, on a real port
+    cc-daemon simulate-sonar --port P        the simulated Ping1D echosounder alone
 
 Exit status: 0 success; 1 a tool found problems (corrupt frames, a failed
 survey); 2 bad usage or configuration (nothing was opened); 130 the daemon was
@@ -101,7 +102,7 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 def build_parser() -> argparse.ArgumentParser:
     from cc_daemon import datacli
-    from cc_daemon.sim import runner
+    from cc_daemon.sim import runner, sonar_cli
 
     parser = argparse.ArgumentParser(
         prog="cc-daemon",
@@ -120,6 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_decode(sub)
     datacli.add_commands(sub)
     runner.add_commands(sub)
+    sonar_cli.add_commands(sub)
     return parser
 
 

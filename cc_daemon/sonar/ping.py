@@ -20,6 +20,7 @@ It does no I/O, reads no clock, and never raises on bytes from the peer.
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,12 +63,22 @@ def encode(message_id: int, *, src: int = 0, dst: int = 0, **fields: int | bytes
     unknown = sorted(set(fields) - set(names))
     if unknown:
         raise FieldError(unknown[0], fields[unknown[0]], f"a field of {spec['name']}: {names}")
+    if message_id == NACK:
+        return _encode_nack(src, dst, int(fields.get("nacked_id", 0)), fields.get("nack_message"))
     message = PingMessage(message_id, payload_dict=PING1D_TABLE)
     message.src_device_id = src
     message.dst_device_id = dst
     for name, value in fields.items():
         setattr(message, name, value)
     return bytes(message.pack_msg_data())
+
+
+def _encode_nack(src: int, dst: int, nacked_id: int, text: int | bytes | None) -> bytes:
+    # brping 0.2.5 cannot build its own text messages (PingMessage(COMMON_NACK)
+    # takes len() of the int it just put in the text field): packed here.
+    payload = struct.pack("<H", nacked_id) + (text if isinstance(text, bytes) else b"")
+    head = struct.pack("<BBHHBB", _B, _R, len(payload), NACK, src, dst) + payload
+    return head + struct.pack("<H", sum(head) & 0xFFFF)
 
 
 def request(requested_id: int, *, dst: int = 1) -> bytes:
@@ -160,6 +171,24 @@ class Envelope:
     dst: int
 
 
+def _brping_can_unpack(head: bytearray) -> bool:
+    """Whether brping knows this frame's id and its payload is empty or long enough."""
+    spec = PING1D_TABLE.get(_u16(head, 4))
+    if spec is None:
+        return False
+    length = _u16(head, 2)
+    return length == 0 or length >= spec["payload_length"]
+
+
+def _checked_event(message: Any) -> PingEvent:
+    mid = int(message.message_id)
+    if int(message.payload_length) == 0 and PING1D_TABLE[mid]["payload_length"] > 0:
+        # A message with its id and no payload is the older request form
+        # (brping's Ping1D.legacyRequest): "send me this".
+        return GeneralRequest(mid)
+    return _event(message)
+
+
 def _event(message: Any) -> PingEvent:
     mid = int(message.message_id)
     if mid == DISTANCE_SIMPLE:
@@ -179,7 +208,7 @@ def _event(message: Any) -> PingEvent:
     if mid == CONTINUOUS_STOP:
         return ContinuousStop(int(message.id))
     if mid == NACK:
-        text = bytes(message.nack_message).rstrip(b"\0").decode("ascii", "replace")
+        text = bytes(getattr(message, "nack_message", b"")).rstrip(b"\0").decode("ascii", "replace")
         return Nack(int(message.nacked_id), text)
     return OtherMessage(mid)
 
@@ -201,15 +230,20 @@ class PingStream:
             byte = work[i]
             i += 1
             state = parser.state
-            if state == PingParser.WAIT_CHECKSUM_H and parser.message_id not in PING1D_TABLE:
-                # brping would print "Unknown message" to stdout: finish it here.
+            if state == PingParser.WAIT_CHECKSUM_H and not _brping_can_unpack(parser.buf):
+                # brping would print to stdout ("Unknown message", "error
+                # unpacking payload"): finish this frame here.
                 frame = bytes(parser.buf) + bytes([byte])
                 self._reset()
-                if _checksum_ok(frame):
+                if not _checksum_ok(frame):
+                    work[i:i] = self._bad("checksum", frame, out)
+                elif _u16(frame, 4) in PING1D_TABLE:
+                    name = PING1D_TABLE[_u16(frame, 4)]["name"]
+                    reason = f"{name} payload of {_u16(frame, 2)} bytes is too short"
+                    self._bad(reason, frame, out)  # a whole, checked frame: nothing to search
+                else:
                     self.frames += 1
                     out.append(Envelope(OtherMessage(_u16(frame, 4)), frame[6], frame[7]))
-                else:
-                    work[i:i] = self._bad("checksum", frame, out)
                 continue
             result = parser.parse_byte(byte)
             if state == PingParser.WAIT_HEADER and byte == _B and parser.state != state:
@@ -219,13 +253,10 @@ class PingStream:
                 self._reset()
                 work[i:i] = self._bad(f"payload length {_u16(frame, 2)} too long", frame, out)
             elif result == PingParser.NEW_MESSAGE:
-                self.frames += 1
                 message = parser.rx_msg
-                out.append(
-                    Envelope(
-                        _event(message), int(message.src_device_id), int(message.dst_device_id)
-                    )
-                )
+                self.frames += 1
+                event = _checked_event(message)
+                out.append(Envelope(event, int(message.src_device_id), int(message.dst_device_id)))
             elif result == PingParser.ERROR:
                 frame = bytes(parser.rx_msg.msg_data)
                 parser.state = PingParser.WAIT_START
@@ -246,7 +277,7 @@ class PingStream:
         parser.message_id = 0
 
 
-def _u16(frame: bytes, offset: int) -> int:
+def _u16(frame: bytes | bytearray, offset: int) -> int:
     return frame[offset] | frame[offset + 1] << 8
 
 
