@@ -57,6 +57,7 @@ from cc_daemon.protocol import (
     encode,
 )
 from cc_daemon.protocol.messages import CcMessage, DepthReport
+from cc_daemon.sonar.onboard import OnboardSonar
 from cc_daemon.store import Journal, default_store_path
 from cc_daemon.systemd import SystemdNotifier
 from cc_daemon.winch.base import Winch, WinchStatus
@@ -166,6 +167,7 @@ class Daemon:
             reconnect_initial_s=serial_settings.reconnect_initial_s,
             reconnect_max_s=serial_settings.reconnect_max_s,
         )
+        self.sonar = OnboardSonar.from_settings(settings.sonar, self._clock, lambda: self._journal)
         self._cast: _ActiveCast | None = None
         self._tasks: asyncio.TaskGroup | None = None
         self.last_fix: Fix | None = None
@@ -206,6 +208,10 @@ class Daemon:
                 housekeeping = tasks.create_task(
                     self._keep_running("housekeeping", self._housekeeping), name="housekeeping"
                 )
+                sonar = self.sonar
+                sonar_task = sonar and tasks.create_task(
+                    self._keep_running("sonar", sonar.run), name="sonar"
+                )
                 # Serving from here on; the port may come later (a late USB adapter).
                 self._notifier.notify("READY=1", f"STATUS=opening {self.link.port}")
                 await self._shutdown.wait()
@@ -213,6 +219,8 @@ class Daemon:
                 await self._finish_running_cast()
                 link_task.cancel()
                 housekeeping.cancel()
+                if sonar_task:
+                    sonar_task.cancel()
         finally:
             await self._close()
         return self._exit_code
@@ -454,7 +462,12 @@ class Daemon:
             _log.info("station already done: repeating R-F", cast_id=done.cast_id)
             self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
             return
-        plan = plan_cast(station, self.settings.cast, self.settings.winch.max_line_m)
+        bottom = station
+        if self.sonar is not None:  # the freshest confident bottom of the two sonars
+            bottom = self.sonar.station_for_plan(
+                station, now, self.settings.cast.min_sonar_confidence
+            )
+        plan = plan_cast(bottom, self.settings.cast, self.settings.winch.max_line_m)
         if isinstance(plan, SkipCast):
             self._skip_cast(station, plan, now, status)
         else:

@@ -273,7 +273,7 @@ def test_unknown_section_and_subsection_in_file(tmp_path: Path) -> None:
         f"winch.gpio (from {config}): unknown key; "
         "allowed keys in [winch]: backend, max_line_m, sim",
         f"logging (from {config}): unknown section; "
-        "allowed sections: serial, winch, cast, store, log (did you mean log?)",
+        "allowed sections: serial, winch, cast, store, log, sonar (did you mean log?)",
     ]
 
 
@@ -282,7 +282,7 @@ def test_unknown_environment_variables_are_errors() -> None:
         f"serial.bogus (from CC_DAEMON_SERIAL__BOGUS): unknown key; allowed keys in [serial]: "
         f"{SERIAL_KEYS}",
         "port (from CC_DAEMON_PORT): unknown section; "
-        "allowed sections: serial, winch, cast, store, log",
+        "allowed sections: serial, winch, cast, store, log, sonar",
     ]
 
 
@@ -503,7 +503,12 @@ def _leaf_names(section: dict[str, Any], prefix: str = "") -> Iterator[str]:
 def reference_rows() -> dict[str, str]:
     """key -> default column of the reference's key table."""
     rows: dict[str, str] = {}
-    for line in CONFIG_REFERENCE.read_text(encoding="utf-8").splitlines():
+    # A section documented on its own page (docs/sonar.md) keeps its key table there.
+    text = "\n".join(
+        path.read_text(encoding="utf-8")
+        for path in (CONFIG_REFERENCE, *sorted((ROOT / "docs").glob("*.md")))
+    )
+    for line in text.splitlines():
         row = re.match(r"\| `([\w.]+)` \| ([^|]*) \|", line)
         if row and "." in row[1]:
             rows[row[1]] = row[2].strip()

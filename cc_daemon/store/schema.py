@@ -106,8 +106,25 @@ _V2: tuple[str, ...] = (
     "CREATE INDEX fixes_by_session ON fixes(session_id, mono_s)",
 )
 
+# Sonar readings: every distance_simple the daemon's own Ping1D sent
+# (`[sonar]`), four a second while it streams. Self-contained: it only adds a
+# table and its index, so it can take any place after _V2.
+_SONAR_READINGS: tuple[str, ...] = (
+    """CREATE TABLE sonar_readings (
+        id INTEGER PRIMARY KEY,
+        session_id INTEGER REFERENCES sessions(id),
+        mono_s REAL NOT NULL,
+        wall_s REAL NOT NULL,
+        clock_synced INTEGER NOT NULL,
+        port TEXT NOT NULL,
+        distance_mm INTEGER NOT NULL,
+        confidence_pct INTEGER NOT NULL
+    )""",
+    "CREATE INDEX sonar_readings_by_wall ON sonar_readings(wall_s)",
+)
+
 # MIGRATIONS[n] takes a file from version n to version n + 1.
-MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2)
+MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, _SONAR_READINGS)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
