@@ -12,6 +12,7 @@ from pathlib import Path
 
 from cc_daemon.protocol import StartMeasuring, Telemetry
 from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig
+from cc_daemon.sim.mission import SonarReading as MissionReading
 from cc_daemon.sim.mission import make_mission
 from cc_daemon.sim.ping1d import Echo, FieldSounder, Ping1DDevice, Ping1DServer
 from cc_daemon.sim.pty import PtyPair
@@ -203,3 +204,22 @@ async def test_simulate_sonar_refuses_a_missing_port(tmp_path: Path) -> None:
     _, err = await asyncio.wait_for(proc.communicate(), 30)
     assert proc.returncode == 2
     assert b"cc-daemon simulate-sonar:" in err
+
+
+def test_with_a_sonar_the_autopilot_reports_it_and_settles_before_m() -> None:
+    mission = make_mission(1, seed=2)
+    config = AutopilotConfig(frame_period_s=0.25, boat_speed_m_s=1000.0, settle_s=0.75)
+    autopilot = Autopilot(mission, config)
+    autopilot.sonar = lambda: MissionReading(1234, 88)
+    frames = []
+    t = 0.0
+    while not any(isinstance(f, StartMeasuring) for f in frames):
+        frames += autopilot.poll(t)
+        t += 0.25
+        assert t < 10
+    assert all((f.sonar_distance_mm, f.sonar_confidence_pct) == (1234, 88) for f in frames)
+    arrived = autopilot.logs[0].arrived_at
+    assert arrived is not None
+    first_m = next(i for i, f in enumerate(frames) if isinstance(f, StartMeasuring))
+    assert (first_m * 0.25) - arrived >= 0.75  # T frames on station for the settle time
+    assert all(isinstance(f, Telemetry) for f in frames[:first_m])

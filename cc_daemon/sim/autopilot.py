@@ -126,6 +126,9 @@ class AutopilotConfig:
     # serial.reconnect_max_s (5 s by default), plus a second to answer.
     outage_grace_s: float = 6.0
     station_grace_s: float = 3.0  # late answers to our last M after leaving are not news
+    # Hold on station this long (sending T) before the first M, so a sonar read
+    # over a real link (`sim.sonar_chain`) has heard the station, not the approach.
+    settle_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.frame_period_s <= 0:
@@ -363,7 +366,8 @@ class Autopilot:
     def _frame(self, now: float) -> AutopilotMessage:
         stamp = int(now) & 0xFFFF  # whole seconds since boot, as the firmware counts
         log = self.logs[self.index]
-        if self.phase is Phase.REQUESTING:
+        settling = log.arrived_at is not None and now - log.arrived_at < self.config.settle_s
+        if self.phase is Phase.REQUESTING and not settling:
             return self._start_measuring(now, stamp, log)
         if self.phase is Phase.CASTING:
             self._frames_at_station += 1

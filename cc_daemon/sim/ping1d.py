@@ -44,6 +44,7 @@ STREAM_INTERVAL_S = 0.25  # the manual: distance_simple every 250 ms
 SPEED_OF_SOUND_MM_S = 1_500_000  # fresh water, as a Ping1D ships
 PROTOCOL_VERSION = (1, 0, 0)
 SHALLOW_M = 1.5  # below this the echo crowds the transmit pulse
+_SHALLOW_PENALTY_PER_M = 12.0  # 0.6 m of water costs about 11 %
 _STEEP_PENALTY_PER_SLOPE = 200.0  # a 0.1 m/m slope costs 20 % confidence
 _SLOPE_STEP_M = 2.0
 
@@ -95,7 +96,7 @@ class FieldSounder:
         depth = self.mission.field.depth_at(point)
         noise = max(-3 * self.noise_m, min(3 * self.noise_m, rng.gauss(0.0, self.noise_m)))
         confidence = float(rng.randint(75, 90) if moving else rng.randint(92, 100))
-        confidence -= max(0.0, SHALLOW_M - depth) * 15.0
+        confidence -= max(0.0, SHALLOW_M - depth) * _SHALLOW_PENALTY_PER_M
         confidence -= min(40.0, self.slope(point) * _STEEP_PENALTY_PER_SLOPE)
         return Echo(round(max(depth + noise, 0.0) * 1000), max(0, min(100, round(confidence))))
 

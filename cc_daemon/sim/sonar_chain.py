@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from cc_daemon.sim.autopilot import Autopilot, Phase
@@ -25,6 +26,11 @@ from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sonar.reader import SonarReader
 
 OPEN_TIMEOUT_S = 5.0
+# Three readings of the 250 ms stream: the M frame then carries what the sonar
+# heard on station. A boat really does settle before sampling; at the
+# simulator's brisk paces (80 m/s and more) a reading 250 ms old was taken tens
+# of metres back, maybe off the shoal, or lost in the wake.
+SETTLE_S = 0.75
 
 
 class AutopilotSonar:
@@ -99,4 +105,6 @@ async def attach_sonar(
             async with asyncio.timeout(OPEN_TIMEOUT_S):
                 await reader.opened.wait()
     autopilot.sonar = chain.reading
+    if autopilot.config.settle_s < SETTLE_S:
+        autopilot.config = replace(autopilot.config, settle_s=SETTLE_S)
     return chain
