@@ -26,7 +26,7 @@ from cc_daemon.sim.ping1d import Echo, Ping1DDevice, Ping1DServer
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sonar import ping
-from tests.daemonkit import FAST_CAST, merge, station
+from tests.daemonkit import FAST_CAST, DaemonProcess, merge, station
 
 
 def _s(source: str, mm: int, conf: int, at: float) -> Sounding:
@@ -149,3 +149,34 @@ async def test_the_daemon_plans_from_its_own_sonar_and_journals_every_reading(
 def test_no_sonar_section_means_no_onboard_sonar(tmp_path: Path) -> None:
     daemon = Daemon(Settings.model_validate({"store": {"path": str(tmp_path / "j.db")}}))
     assert daemon.sonar is None
+
+
+@pytest.mark.slow
+async def test_the_daemon_process_plans_from_its_sonar_and_refuses_a_bad_sonar_setting(
+    tmp_path: Path, make_daemon: Callable[..., DaemonProcess]
+) -> None:
+    with PtyPair(tmp_path / "ttySONAR") as sonar_pty:
+        # 0.7 m of water: the daemon's own Ping says the station is too shallow.
+        device = Ping1DDevice(lambda: Echo(700, 93))
+        server = await Ping1DServer.over_fd(sonar_pty.master_fd, device)
+        try:
+            daemon = make_daemon({"sonar": {"port": str(sonar_pty.path)}})
+            await daemon.start_and_connect()
+            await _until(lambda: device.sent_readings >= 3, timeout=15)
+            assert daemon.port is not None
+            await daemon.port.send(station(sonar_mm=30_000, confidence=10))
+            await daemon.expect(Ack, 3)
+            finished = await daemon.expect(Finished, 3)  # skipped at once: no cast
+            assert finished is not None and finished.message.depth_mm == 0
+            daemon.send_signal()
+            assert await daemon.wait_exit() == 0
+        finally:
+            await server.close()
+        assert device.requests[-1] == ping.CONTINUOUS_STOP
+    [(outcome, reason)] = _rows(daemon.db, "SELECT outcome, reason FROM casts")
+    assert outcome == "skipped-shallow" and "sonar 0.7 m" in str(reason)
+    assert _rows(daemon.db, "SELECT count(*) FROM sonar_readings")[0][0] >= 3
+    bad = make_daemon({"sonar": {"port": str(tmp_path / "x"), "max_age_s": 0}}, name="bad")
+    bad.start()
+    assert await bad.wait_exit() == 2
+    assert "sonar.max_age_s = 0" in bad.log_text()

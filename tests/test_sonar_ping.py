@@ -184,3 +184,22 @@ def test_protocol_version_reply_decodes() -> None:
     )
     [event] = PingStream().feed(reply)
     assert event.event == ProtocolVersion(1, 0, 0)
+
+
+@given(st.lists(st.integers(1, 30), max_size=10), st.integers(0, 3))
+def test_any_chunking_gives_the_same_events(cuts: list[int], garbage: int) -> None:
+    data = b"\x00B" * garbage + _reading(1, 2) + b"BR\x05" + _reading(3, 4) + _reading(5, 6)
+    whole = PingStream().feed(data)
+    stream = PingStream()
+    chunked = []
+    rest = data
+    for cut in cuts:
+        chunked += stream.feed(rest[:cut])
+        rest = rest[cut:]
+    chunked += stream.feed(rest)
+    assert chunked == whole
+    assert [e.event for e in whole if isinstance(e.event, DistanceSimple)] == [
+        DistanceSimple(1, 2),
+        DistanceSimple(3, 4),
+        DistanceSimple(5, 6),
+    ]

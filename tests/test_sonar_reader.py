@@ -223,3 +223,25 @@ def test_with_a_sonar_the_autopilot_reports_it_and_settles_before_m() -> None:
     first_m = next(i for i, f in enumerate(frames) if isinstance(f, StartMeasuring))
     assert (first_m * 0.25) - arrived >= 0.75  # T frames on station for the settle time
     assert all(isinstance(f, Telemetry) for f in frames[:first_m])
+
+
+async def test_corrupt_bytes_from_the_sonar_are_counted_and_reading_goes_on(
+    tmp_path: Path,
+) -> None:
+    with PtyPair(tmp_path / "ttySONAR") as pair:
+        server = await Ping1DServer.over_fd(pair.master_fd, Ping1DDevice(ScriptedSounder()))
+        reader = SonarReader(str(pair.path))
+        task = asyncio.create_task(reader.run())
+        try:
+            await _until(lambda: reader.client.readings >= 1)
+            spoiled = bytearray(ping.encode(ping.DISTANCE_SIMPLE, src=1, distance=1, confidence=1))
+            spoiled[9] ^= 0x01
+            server.write(b"\xff\x00BRB" + bytes(spoiled) + b"BR\xff\xff")
+            before = reader.client.readings
+            await _until(lambda: reader.client.readings >= before + 3)
+            assert reader.client.bad_frames >= 2
+            assert reader.client.latest.distance_mm >= 4000  # never the spoiled 1 mm
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+            await server.close()
