@@ -10,6 +10,7 @@
     cc-daemon doctor                         check this Pi is ready to run the service
     cc-daemon simulate-sonde --port PATH     the simulated sonde alone, on a pty at PATH
     cc-daemon winch status|home|down|up      the GPIO winch by hand (jog, home, calibrate)
+    cc-daemon simulate-sonar --port P        the simulated Ping1D echosounder alone
 
 Exit status: 0 success; 1 a tool found problems (corrupt frames, a failed
 survey); 2 bad usage or configuration (nothing was opened); 130 the daemon was
@@ -115,7 +116,7 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
 def build_parser() -> argparse.ArgumentParser:
     from cc_daemon import datacli, sondecli, winchcli
     from cc_daemon.doctor import cli as doctor_cli
-    from cc_daemon.sim import runner
+    from cc_daemon.sim import runner, sonar_cli
     from cc_daemon.sim import sondecli as simulate_sonde
     from cc_daemon.status import cli as status_cli
 
@@ -141,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     sondecli.add_command(sub)
     simulate_sonde.add_command(sub)
     winchcli.add_command(sub)
+    sonar_cli.add_commands(sub)
     return parser
 
 

@@ -57,6 +57,7 @@ __all__ = [
     "LogSettings",
     "SerialSettings",
     "Settings",
+    "SonarSettings",
     "StatusSettings",
     "StoreSettings",
     "WinchGpioSettings",
@@ -392,6 +393,30 @@ class StatusSettings(BaseModel):
     client_timeout_s: _Positive = 2.0
 
 
+class SonarSettings(BaseModel):
+    """[sonar]: a Ping1D echosounder wired to the companion computer (off without a port)."""
+
+    model_config = _SECTION
+
+    # None (or empty): no sonar on this computer; the autopilot's frames are the only source.
+    port: Annotated[str | None, BeforeValidator(_empty_is_none)] = None
+    baudrate: Annotated[int, AfterValidator(_check_baudrate)] = 115200
+    max_age_s: _Positive = 1.0
+    restart_after_s: _Positive = 3.0
+    reconnect_initial_s: _Positive = 0.2
+    reconnect_max_s: _Positive = 5.0
+
+    @model_validator(mode="after")
+    def _check(self) -> SonarSettings:
+        if self.reconnect_max_s < self.reconnect_initial_s:
+            raise _impossible(
+                "{0} must be at least {1} (the reopen delay grows from the first to the second)",
+                "reconnect_max_s",
+                "reconnect_initial_s",
+            )
+        return self
+
+
 class Settings(BaseSettings):
     """The whole configuration, frozen. Build it with `load_settings` to read sources."""
 
@@ -404,6 +429,7 @@ class Settings(BaseSettings):
     log: LogSettings = LogSettings()
     status: StatusSettings = StatusSettings()
     sonde: SondeSettings = SondeSettings()
+    sonar: SonarSettings = SonarSettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
 
@@ -445,6 +471,12 @@ class Settings(BaseSettings):
                 "{0} needs a sonde: set {1} (the R-M depth would come from nowhere)",
                 "cast.depth_source",
                 "sonde.backend",
+            )
+        if self.sonar.port is not None and self.sonar.port == self.serial.port:
+            raise _impossible(
+                "{0} must not be {1} (the sonar and the autopilot need a port each)",
+                "sonar.port",
+                "serial.port",
             )
         return self
 

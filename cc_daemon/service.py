@@ -57,6 +57,7 @@ from cc_daemon.protocol import (
 )
 from cc_daemon.protocol.messages import CcMessage, DepthReport
 from cc_daemon.simgate import backend_name, is_simulated, simulation_warning
+from cc_daemon.sonar.onboard import OnboardSonar
 from cc_daemon.sonde.duty import SondeDuty, make_sonde
 from cc_daemon.store import Journal, default_store_path
 from cc_daemon.systemd import SystemdNotifier
@@ -156,6 +157,7 @@ class Daemon:
             reconnect_initial_s=serial_settings.reconnect_initial_s,
             reconnect_max_s=serial_settings.reconnect_max_s,
         )
+        self.sonar = OnboardSonar.from_settings(settings.sonar, self._clock, lambda: self._journal)
         self._cast: _ActiveCast | None = None
         self._tasks: asyncio.TaskGroup | None = None
         self.last_fix: Fix | None = None
@@ -217,6 +219,10 @@ class Daemon:
                 sonde = self._sonde and tasks.create_task(
                     self._keep_running("sonde", self._sonde.run), name="sonde"
                 )
+                sonar = self.sonar
+                sonar_task = sonar and tasks.create_task(
+                    self._keep_running("sonar", sonar.run), name="sonar"
+                )
                 # Serving from here on; the port may come later (a late USB adapter).
                 self._notifier.notify("READY=1", f"STATUS=opening {self.link.port}")
                 await self._shutdown.wait()
@@ -227,6 +233,8 @@ class Daemon:
                 status.cancel()
                 if sonde:
                     sonde.cancel()
+                if sonar_task:
+                    sonar_task.cancel()
         finally:
             await self._close()
         return self._exit_code
@@ -475,7 +483,12 @@ class Daemon:
             _log.info("station already done: repeating R-F", cast_id=done.cast_id)
             self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
             return
-        plan = plan_cast(station, self.settings.cast, self.settings.winch.max_line_m)
+        bottom = station
+        if self.sonar is not None:  # the freshest confident bottom of the two sonars
+            bottom = self.sonar.station_for_plan(
+                station, now, self.settings.cast.min_sonar_confidence
+            )
+        plan = plan_cast(bottom, self.settings.cast, self.settings.winch.max_line_m)
         if isinstance(plan, SkipCast):
             self._skip_cast(station, plan, now, status)
         else:

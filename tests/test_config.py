@@ -23,7 +23,7 @@ EXAMPLE_TOML = ROOT / "config" / "cc-daemon.toml"
 # The configuration reference (docs/configuration.md): its key table and examples.
 CONFIG_REFERENCE = ROOT / "docs" / "configuration.md"
 # Sections documented on their own page, in the same table form.
-SECTION_REFERENCES = (ROOT / "docs" / "sonde.md",)
+SECTION_REFERENCES = (ROOT / "docs" / "sonde.md", ROOT / "docs" / "sonar.md")
 PREFIX = "cc-daemon: bad configuration: "
 RATES = "1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600"
 LEVELS = '"debug", "info", "warning", "error" or "critical"'
@@ -275,7 +275,8 @@ def test_unknown_section_and_subsection_in_file(tmp_path: Path) -> None:
         f"winch.stepper (from {config}): unknown key; "
         "allowed keys in [winch]: backend, max_line_m, sim, gpio",
         f"logging (from {config}): unknown section; "
-        "allowed sections: serial, winch, cast, store, log, status, sonde (did you mean log?)",
+        "allowed sections: serial, winch, cast, store, log, status, sonde, sonar"
+        " (did you mean log?)",
     ]
 
 
@@ -284,7 +285,7 @@ def test_unknown_environment_variables_are_errors() -> None:
         f"serial.bogus (from CC_DAEMON_SERIAL__BOGUS): unknown key; allowed keys in [serial]: "
         f"{SERIAL_KEYS}",
         "port (from CC_DAEMON_PORT): unknown section; "
-        "allowed sections: serial, winch, cast, store, log, status, sonde",
+        "allowed sections: serial, winch, cast, store, log, status, sonde, sonar",
     ]
 
 

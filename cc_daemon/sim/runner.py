@@ -132,6 +132,8 @@ class SimOptions:
     out: TextIO | None = None  # default sys.stdout
     handle_signals: bool = True  # Ctrl-C / SIGTERM end the run cleanly
     pace: Pace | None = None  # default FAST, or REALTIME with `realtime`
+    sonar: bool = True  # the autopilot reads a Ping1D: simulated on a pty, or at sonar_port
+    sonar_port: str | None = None  # a real Ping1D (a bench test of the whole chain)
 
     def __post_init__(self) -> None:
         if self.stations < 1:
@@ -810,6 +812,13 @@ async def run_simulation(options: SimOptions) -> int:
             drop_for=options.drop_link_for,
         )
         run.tap = LogTap(log_file, run.now)
+        sonar = None
+        if options.sonar:
+            from cc_daemon.sim.sonar_chain import attach_sonar
+
+            sonar = await attach_sonar(
+                autopilot, run.now, port=options.sonar_port, workdir=Path(tmp), seed=options.seed
+            )
         configure_logging("json", settings.log.level, stream=cast(TextIO, run.tap))
         console.start(mission, _headline(options, mission))
         daemon_task = asyncio.create_task(daemon.run(), name="daemon")
@@ -825,6 +834,8 @@ async def run_simulation(options: SimOptions) -> int:
             finally:
                 run.drain_log()
                 await run.close()
+                if sonar is not None:
+                    await sonar.close()
                 console.stop()
                 reset_logging()
         casts: list[JournalCast] | None = None
@@ -1069,6 +1080,14 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the simulated winch jams on the way home: no R-F, the autopilot gives up",
     )
+    group.add_argument(
+        "--sonar-port",
+        metavar="PATH",
+        help="the autopilot reads a real Ping1D here (115200 8N1) instead of the simulated one",
+    )
+    group.add_argument(
+        "--no-sonar", action="store_true", help="no Ping1D: the autopilot makes its readings up"
+    )
     group.add_argument("--plain", action="store_true", help="plain log lines even on a terminal")
 
 
@@ -1086,6 +1105,8 @@ def options_from_args(args: argparse.Namespace, settings: Settings | None) -> Si
         db=getattr(args, "db", None),
         live=False if args.plain else None,
         settings=settings,
+        sonar=not args.no_sonar,
+        sonar_port=args.sonar_port,
     )
 
 

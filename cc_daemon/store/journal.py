@@ -1,8 +1,8 @@
-"""The survey journal's records: fixes, casts, samples and events, and their tables.
+"""The survey journal's records: fixes, casts, samples, events and sonar readings.
 
 This module owns what the journal holds: the `Journal` API the daemon calls
 from its asyncio loop (`record_fix`, `start_cast`, `record_sample`, `end_cast`,
-`record_event`), the rows those build and the SQL that stores them, the
+`record_event`, `record_sonar`), the rows those build and the SQL that stores them, the
 session each run opens, and closing the casts a crash left open. Every call
 stamps its row (monotonic time, wall-clock UTC, whether the clock looked
 synchronised), hands it to the buffered writer (`writer.BufferedWriter`) and
@@ -43,6 +43,7 @@ _CAST = 1
 _SAMPLE = 2
 _END = 3
 _EVENT = 4
+_SONAR = 6  # written in bulk with the fixes (`bulk_kinds`); 5 is the sonde's (`store.sonde`)
 
 _INSERT_FIX = (
     "INSERT INTO fixes (session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s,"
@@ -62,6 +63,10 @@ _INSERT_SAMPLE = (
 _UPDATE_END = (
     "UPDATE casts SET end_mono_s = ?, end_wall_s = ?, end_clock_synced = ?, outcome = ?,"
     " reached_depth_m = ?, reason = ? WHERE id = ?"
+)
+_INSERT_SONAR = (
+    "INSERT INTO sonar_readings (session_id, mono_s, wall_s, clock_synced, port, distance_mm,"
+    " confidence_pct) VALUES (?, ?, ?, ?, ?, ?, ?)"
 )
 _INSERT_EVENT = (
     "INSERT INTO events (session_id, mono_s, wall_s, clock_synced, kind, detail_json)"
@@ -132,6 +137,10 @@ _SPILL_LAYOUT: dict[int, tuple[str, tuple[str, ...]]] = {
     ),
     _EVENT: ("events", ("mono_s", "wall_s", "clock_synced", "kind", "detail_json")),
     sonde.SONDE: ("sonde_samples", sonde.COLUMNS),
+    _SONAR: (
+        "sonar_readings",
+        ("mono_s", "wall_s", "clock_synced", "port", "distance_mm", "confidence_pct"),
+    ),
 }
 
 
@@ -179,7 +188,9 @@ class Journal(BufferedWriter):
 
     # When the buffer is full: after the fixes, events go, then samples, then the
     # sonde's readings (what the boat stops for); casts never.
+    # Sonar readings are bulk rows like the fixes: written and shed with them.
     shed_order = (_EVENT, _SAMPLE, sonde.SONDE)
+    bulk_kinds = frozenset({FIX, _SONAR})
 
     def __init__(
         self,
@@ -368,6 +379,17 @@ class Journal(BufferedWriter):
         except Exception as exc:
             self._errors.error("end_cast", "journal could not record a cast end", error=repr(exc))
 
+    def record_sonar(self, port: str, distance_mm: int, confidence_pct: int) -> None:
+        """One reading of the daemon's own sonar (`[sonar]`), as it arrived."""
+        try:
+            mono = self._monotonic()
+            row = (_SONAR, mono, self._wall(), self._clock_synced(mono), port)
+            self._append((*row, distance_mm, confidence_pct))
+        except Exception as exc:
+            self._errors.error(
+                "record_sonar", "journal could not record a sonar reading", error=repr(exc)
+            )
+
     def record_event(self, kind: str, **detail: object) -> None:
         """A link or fault event (`port_lost`, `winch_fault`, ...) with its details.
 
@@ -485,6 +507,8 @@ class Journal(BufferedWriter):
         kind = row[0]
         if kind == FIX:
             conn.execute(_INSERT_FIX, (self._session_id, *row[1:]))
+        elif kind == _SONAR:
+            conn.execute(_INSERT_SONAR, (self._session_id, *row[1:]))
         elif kind == _SAMPLE:
             conn.execute(_INSERT_SAMPLE, (self._stored_id(row[1], new_ids), *row[2:]))
         elif kind == _CAST:

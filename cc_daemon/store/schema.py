@@ -118,10 +118,27 @@ _V4: tuple[str, ...] = (
     "ALTER TABLE casts ADD COLUMN simulated INTEGER",
 )
 
-# MIGRATIONS[n] takes a file from version n to version n + 1.
-# Version 3: the sonde's readings (self-contained; see `store.sonde`); version 4:
-# the winch backend and whether the data are simulated.
-MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, sonde.MIGRATION, _V4)
+# Version 5, sonar readings: every distance_simple the daemon's own Ping1D sent
+# (`[sonar]`), four a second while it streams. Self-contained: it only adds a
+# table and its index, so it can take any place after _V2.
+_SONAR_READINGS: tuple[str, ...] = (
+    """CREATE TABLE sonar_readings (
+        id INTEGER PRIMARY KEY,
+        session_id INTEGER REFERENCES sessions(id),
+        mono_s REAL NOT NULL,
+        wall_s REAL NOT NULL,
+        clock_synced INTEGER NOT NULL,
+        port TEXT NOT NULL,
+        distance_mm INTEGER NOT NULL,
+        confidence_pct INTEGER NOT NULL
+    )""",
+    "CREATE INDEX sonar_readings_by_wall ON sonar_readings(wall_s)",
+)
+
+# MIGRATIONS[n] takes a file from version n to version n + 1. Version 3: the
+# sonde's readings (self-contained; see `store.sonde`); version 4: the winch
+# backend and whether the data are simulated; version 5: the sonar's readings.
+MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, sonde.MIGRATION, _V4, _SONAR_READINGS)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
