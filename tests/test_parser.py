@@ -32,7 +32,7 @@ from cc_daemon.protocol import (
 from tests import strategies as cs
 from tests.test_protocol_examples import EXAMPLES, MANUAL_P_T, frame
 
-MAX_FRAME = 25
+MAX_FRAME = 26
 # Streams of a few hundred bytes, some fed byte by byte: quick, but the suite
 # shares two cores with subprocess tests, and a slow example is not a bug.
 relaxed = settings(deadline=None)
