@@ -114,8 +114,8 @@ Row = tuple[Any, ...]
 
 _INSERT_FIX = (
     "INSERT INTO fixes (session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s,"
-    " lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct)"
-    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
+    " lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct, measuring_mode,"
+    " ap_time_s, ap_time_order) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
 )
 _INSERT_CAST = (
     "INSERT INTO casts (id, session_id, start_mono_s, start_wall_s, start_clock_synced,"
@@ -162,6 +162,9 @@ _SPILL_LAYOUT: dict[int, tuple[str, tuple[str, ...]]] = {
             "alt_mm",
             "sonar_distance_mm",
             "sonar_confidence_pct",
+            "measuring_mode",
+            "ap_time_s",
+            "ap_time_order",
         ),
     ),
     _CAST: (
@@ -519,11 +522,20 @@ class Journal:
     # never takes the daemon down, and a bad argument or an injected clock that
     # fails is logged instead of ending a cast. Logging itself never raises.
 
-    def record_fix(self, msg: Telemetry | StartMeasuring) -> None:
-        """A telemetry fix (`P-T`) or a start-measuring frame (`P-M`), as received."""
+    def record_fix(
+        self,
+        msg: Telemetry | StartMeasuring,
+        *,
+        ap_time_s: int | None = None,
+        ap_time_order: str | None = None,
+    ) -> None:
+        """A telemetry fix (`P-T`) or a start-measuring frame (`P-M`), as received,
+        with the autopilot's clock as decoded in byte order `ap_time_order`."""
         try:
             mono = self._monotonic()
-            self._append((_FIX, mono, self._wall(), self._clock_synced(mono), msg.frame, *msg))
+            mode = msg.mode if isinstance(msg, StartMeasuring) else None
+            row = (_FIX, mono, self._wall(), self._clock_synced(mono), msg.frame, *msg[:6], mode)
+            self._append((*row, ap_time_s, ap_time_order))
         except Exception as exc:
             self._errors.error("record_fix", "journal could not record a fix", error=repr(exc))
 
@@ -546,7 +558,7 @@ class Journal:
                 plan_json = _to_json(plan)
             except (TypeError, ValueError) as exc:  # a circular plan, say
                 plan_json = _to_json({"unserialisable_plan": repr(exc)})
-            row = (_CAST, cast_id, mono, self._wall(), self._clock_synced(mono), *station)
+            row = (_CAST, cast_id, mono, self._wall(), self._clock_synced(mono), *station[:6])
             self._append((*row, planned_depth_m, mode, plan_json))
         except Exception as exc:
             self._errors.error("start_cast", "journal could not record a cast", error=repr(exc))

@@ -106,8 +106,19 @@ _V2: tuple[str, ...] = (
     "CREATE INDEX fixes_by_session ON fixes(session_id, mono_s)",
 )
 
+# Version 3: what the deployed firmware adds (issue 8). `measuring_mode` is the
+# mode byte of the firmware's 26-byte `M` (NULL for a `T` or a 25-byte `M`);
+# `ap_time_s` is the autopilot's clock decoded in the byte order the daemon
+# used, named in `ap_time_order` ("big" or "little"), while `ap_timestamp_s`
+# stays the two bytes read big-endian as the manual says. Older rows keep NULLs.
+_V3: tuple[str, ...] = (
+    "ALTER TABLE fixes ADD COLUMN measuring_mode INTEGER",
+    "ALTER TABLE fixes ADD COLUMN ap_time_s INTEGER",
+    "ALTER TABLE fixes ADD COLUMN ap_time_order TEXT",
+)
+
 # MIGRATIONS[n] takes a file from version n to version n + 1.
-MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2)
+MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, _V3)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
