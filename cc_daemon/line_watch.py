@@ -13,7 +13,6 @@ reply to a stick frame.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import structlog
 
@@ -73,7 +72,7 @@ class LineWatch:
                 self._event("timestamp_order", order=decision.order, votes=decision.votes)
         return self.order.decode(message.timestamp_s)
 
-    def corrupt(self, *_: Any) -> None:
+    def corrupt(self) -> None:
         self.lost.corrupt()
 
     def finished_sent(self, frame: Finished, now: float) -> None:

@@ -47,6 +47,7 @@ from cc_daemon.link import SerialLink
 from cc_daemon.logsetup import flush_rate_limited
 from cc_daemon.protocol import (
     Ack,
+    CorruptFrame,
     Finished,
     Message,
     Parser,
@@ -168,7 +169,6 @@ class Daemon:
         self._parser = Parser(
             Sender.AUTOPILOT,
             accept_g_alias=settings.serial.accept_g_alias,
-            on_error=self._line.corrupt,
         )
         serial_settings = settings.serial
         self.link = SerialLink(
@@ -412,7 +412,10 @@ class Daemon:
             self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
 
     def _on_data(self, data: bytes) -> None:
-        for message in self._parser.feed(data):
+        for message in self._parser.events(data):  # in stream order, errors included
+            if isinstance(message, CorruptFrame):
+                self._line.corrupt()
+                continue
             self.frames_in += 1
             try:
                 self._handle(message)
