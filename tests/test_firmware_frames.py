@@ -31,7 +31,9 @@ from cc_daemon.protocol import (
 )
 from tests import strategies as cs
 
-M_26 = bytes.fromhex("50 4D 16 00 01 02 38 25 50 00 18 1C 4D 60 00 09 EB 10 00 00 0F A0 5A 00 04 51")
+M_26 = bytes.fromhex(
+    "50 4D 16 00 01 02 38 25 50 00 18 1C 4D 60 00 09 EB 10 00 00 0F A0 5A 00 04 51"
+)
 T_1 = bytes.fromhex("50 54 01 00 01 02 38 25 50 00 18 1C 4D 60 00 09 EB 10 00 00 0F A0 5A 04 43")
 T_301 = bytes.fromhex("50 54 2D 01 01 02 38 25 50 00 18 1C 4D 60 00 00 13 88 00 00 0F A0 5A 04 07")
 S_76 = bytes.fromhex("50 53 4C 00 00 EF")
@@ -107,7 +109,9 @@ def test_a_corrupt_26_byte_m_is_reported_whole_and_a_frame_inside_it_found() -> 
     parser = Parser(Sender.AUTOPILOT)
     events = parser.events(bytes(corrupt)) + parser.close()
     assert events[0] == CorruptFrame(
-        ErrorKind.BAD_CHECKSUM, bytes(corrupt), events[0].detail  # type: ignore[union-attr]
+        ErrorKind.BAD_CHECKSUM,
+        bytes(corrupt),
+        events[0].detail,  # type: ignore[union-attr]
     )
     assert "as 26 bytes" in events[0].detail  # type: ignore[union-attr]
     assert ProbePositionRequest(0x4C00) in events

@@ -12,8 +12,8 @@ Two firmware profiles (`AutopilotConfig.firmware`):
   docs/firmware.md): `T` every 1.1 s, timestamps little-endian on the wire,
   the 26-byte `M` (mode byte 0) sent once per station, then silence (no `T`,
   no `S`) until `R-F`; `R-O` and `R-M` are only stored. Optionally a scripted
-  RC-stick jog (`P-D` frames, then `P-U`) on arriving at `jog_station`,
-  before `M`; the firmware expects no reply to them. A stray `R-F` (a repeat)
+  RC-stick jog (`P-D` frames, then `P-U`) on arriving at the deepest
+  station, before `M` (`stick_jog`); the firmware expects no reply to them. A stray `R-F` (a repeat)
   is accepted, as the firmware accepts it.
 - "manual", the behaviour below, as the manual describes it.
 
@@ -149,7 +149,7 @@ class AutopilotConfig:
     outage_grace_s: float = 6.0
     station_grace_s: float = 3.0  # late answers to our last M after leaving are not news
     firmware: Firmware = "manual"
-    jog_station: int | None = None  # 1-based: where the safety pilot jogs the probe
+    stick_jog: bool = False  # ucm-2023: the safety pilot jogs the probe at the deepest station
     # The scripted jog: so many frames of stick down, then a pause (T), stick up, a pause.
     jog_script: tuple[tuple[str, int], ...] = (("D", 1), ("T", 2), ("U", 3), ("T", 3))
 
@@ -248,6 +248,10 @@ class Autopilot:
         self._flips_out: list[float] = []  # ... and on ours
         self._last_heard_at = 0.0  # the last frame (good or corrupt) from the daemon
         self._jog_frames: list[str] = []  # what the stick still has to send
+        self._jog_index: int | None = None
+        if self.config.ucm_2023 and self.config.stick_jog:
+            depths = [s.water_depth_m for s in mission.stations]
+            self._jog_index = depths.index(max(depths))
         self.finished = False
 
     # ------------------------------------------------------------ queries
@@ -374,7 +378,7 @@ class Autopilot:
             return
         self._position = end
         self.phase = Phase.REQUESTING
-        if self.config.ucm_2023 and self.config.jog_station == self.index + 1:
+        if self.index == self._jog_index:
             self.phase = Phase.JOGGING
             self._jog_frames = [kind for kind, n in self.config.jog_script for _ in range(n)]
         self._frames_at_station = 0
@@ -404,8 +408,13 @@ class Autopilot:
             stamp = _little_endian(stamp)
             if self.phase is Phase.JOGGING:
                 return self._jog_frame(stamp, log)
-            if self.phase is Phase.CASTING or (self.phase is Phase.REQUESTING and log.m_sent):
+            waiting = self.phase is Phase.CASTING or (
+                self.phase is Phase.REQUESTING and log.m_sent > 0
+            )
+            if waiting and not self.config.resend_m_during_cast:
                 return None  # M once, then silence until R-F: no T, no S
+            if waiting:
+                return self._start_measuring(now, stamp, log)  # a later line resends
         if self.phase is Phase.REQUESTING:
             return self._start_measuring(now, stamp, log)
         if self.phase is Phase.CASTING:

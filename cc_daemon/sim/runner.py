@@ -731,15 +731,14 @@ def build_summary(
 # ---------------------------------------------------------------- --simulate
 
 
-def firmware_profile(
-    firmware: Firmware, frame_period_s: float | None, stations: int
-) -> dict[str, Any]:
+def firmware_profile(firmware: Firmware, frame_period_s: float | None) -> dict[str, Any]:
     """The autopilot settings a firmware profile brings: the deployed 2023
-    firmware's 1.1 s frame period and, in the demo, one scripted stick jog (at
-    the last station, the deepest water of the demo mission)."""
+    firmware's 1.1 s frame period (scaled with a faster pace's) and one
+    scripted stick jog; the manual's 1 s."""
     if firmware == "ucm-2023":
-        period = UCM_2023_FRAME_PERIOD_S if frame_period_s is None else frame_period_s
-        return {"firmware": firmware, "frame_period_s": period, "jog_station": stations}
+        scale = UCM_2023_FRAME_PERIOD_S
+        period = scale if frame_period_s is None else frame_period_s * scale
+        return {"firmware": firmware, "frame_period_s": period, "stick_jog": True}
     return {"firmware": firmware, "frame_period_s": frame_period_s or 1.0}
 
 
@@ -747,11 +746,7 @@ def autopilot_config(options: SimOptions, settings: Settings) -> AutopilotConfig
     """The simulated autopilot's settings for a run against a daemon with `settings`."""
     pace = options.chosen_pace
     return AutopilotConfig(
-        **firmware_profile(
-            options.firmware,
-            None if options.firmware == "ucm-2023" else pace.frame_period_s,
-            options.stations,
-        ),
+        **firmware_profile(options.firmware, pace.frame_period_s),
         boat_speed_m_s=pace.boat_speed_m_s,
         resend_m_during_cast=options.resend_m,
         finish_timeout_s=pace.finish_timeout_s(settings.cast.max_duration_s),
@@ -968,8 +963,11 @@ async def run_autopilot(options: AutopilotOnlyOptions) -> int:
     """The simulated autopilot alone on a serial port, against a daemon elsewhere."""
     mission = make_mission(options.stations, options.seed)
     console = SimConsole(options.out, live=options.live)
+    profile = firmware_profile(options.firmware, None)
+    if options.frame_period_s is not None:  # given on the command line: as it is
+        profile["frame_period_s"] = options.frame_period_s
     config = AutopilotConfig(
-        **firmware_profile(options.firmware, options.frame_period_s, options.stations),
+        **profile,
         boat_speed_m_s=options.boat_speed_m_s,
         resend_m_during_cast=options.resend_m,
         check_plan=options.check_plan,
