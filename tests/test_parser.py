@@ -413,3 +413,11 @@ def test_timestamps_never_cause_a_frame_to_be_dropped() -> None:
     times = [0, 0, 65535, 3, 0, 40000, 1]
     stream = b"".join(encode(ProbePositionRequest(t)) for t in times)
     assert Parser().feed(stream) == [ProbePositionRequest(t) for t in times]
+
+
+def test_the_properties_mix_both_lengths_of_m() -> None:
+    # Guards the strategies: every property above runs on 25- and 26-byte M frames.
+    from hypothesis import find
+
+    assert len(encode(find(cs.start_measuring, lambda m: m.mode is None))) == 25
+    assert len(encode(find(cs.start_measuring, lambda m: m.mode is not None))) == 26
