@@ -59,6 +59,9 @@ class LineWatch:
         """Any frame from the autopilot: returns its time in its real value."""
         self.rf.frame_received()  # it speaks again: it read our R-F
         if isinstance(message, Telemetry):
+            if self.lost.suspected is not None:
+                _log.info("telemetry again: the autopilot was not waiting on a lost M")
+                self._notify("STATUS=telemetry from the autopilot again")
             self.lost.heard(now)
             decision = self.order.observe_telemetry(message.timestamp_s, now)
             if decision is not None:

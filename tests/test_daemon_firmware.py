@@ -168,6 +168,7 @@ async def test_a_station_while_jogged_down_brings_the_probe_home_first(rig: Rig)
     await port.send(station())
     frames = await until_finished(port)
     assert isinstance(frames[0], Ack) and frames[-1] == Finished(frames[-1].timestamp_s, 0)
+    assert winch.status().at_home
     daemon.request_shutdown()
     await asyncio.sleep(0.3)
     assert [e["reason"] for e in events(db, "jog_stopped")] == ["start-measuring"]

@@ -144,7 +144,7 @@ def test_decode_shows_the_mode_byte_and_the_stick_frames() -> None:
 def test_25_and_26_byte_m_frames_mixed_round_trip(messages: list[Any]) -> None:
     stream = b"".join(encode(m) for m in messages)
     parser = Parser(Sender.AUTOPILOT)
-    assert [m for m in parser.events(stream) + parser.close()] == messages
+    assert list(parser.events(stream) + parser.close()) == messages
 
 
 def test_a_tie_between_the_two_readings_goes_to_the_manuals_25_bytes() -> None:
