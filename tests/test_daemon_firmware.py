@@ -4,7 +4,9 @@ its 26-byte M, little-endian timestamps, the RC stick, R-F repeats, a lost M."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
+import socket
 import sqlite3
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -30,6 +32,7 @@ from cc_daemon.protocol import (
 from cc_daemon.service import EXIT_OK, Daemon
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
+from cc_daemon.systemd import SystemdNotifier
 from cc_daemon.winch.physics import LinePhysics
 from cc_daemon.winch.simulated import SimulatedWinch
 from tests.daemonkit import FAST_CAST, merge, station
@@ -216,3 +219,37 @@ async def test_telemetry_stopping_after_corrupt_frames_is_a_lost_m(rig: Rig) -> 
     await asyncio.sleep(0.3)
     [lost] = events(db, "start_measuring_lost")
     assert lost["corrupt_frames"] >= 1
+
+
+async def test_a_lost_m_shows_in_the_systemd_status_line(tmp_path: Path) -> None:
+    sock_path = tmp_path / "notify.sock"
+    with (
+        socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as server,
+        PtyPair(tmp_path / "tty") as pty,
+    ):
+        server.bind(str(sock_path))
+        server.setblocking(False)
+        config = merge(
+            FAST_CAST,
+            {"serial": {"port": str(pty.path)}, "store": {"path": str(tmp_path / "j.db")}},
+        )
+        daemon = Daemon(Settings.model_validate(config), notifier=SystemdNotifier(str(sock_path)))
+        port = await FramePort.over_fd(pty.master_fd)
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await port.send(Telemetry(1, -37234000, 404508000, 650000, 30_000, 100))
+        await port.send(M_26[:12] + b"\x00" + M_26[13:])  # a spoilt M
+        await asyncio.sleep(3.6)
+        await port.send(Telemetry(6, -37234000, 404508000, 650000, 30_000, 100))
+        await asyncio.sleep(0.3)
+        daemon.request_shutdown()
+        assert await asyncio.wait_for(task, 10) == EXIT_OK
+        await port.close()
+        said = []
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                said.append(server.recv(1024).decode())
+    statuses = [line for msg in said for line in msg.split("\n") if line.startswith("STATUS=")]
+    lost = [s for s in statuses if "start-measuring frame may have been lost" in s]
+    assert len(lost) == 1
+    assert statuses.index(lost[0]) < statuses.index("STATUS=telemetry from the autopilot again")

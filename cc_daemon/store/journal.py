@@ -533,9 +533,25 @@ class Journal:
         with the autopilot's clock as decoded in byte order `ap_time_order`."""
         try:
             mono = self._monotonic()
-            mode = msg.mode if isinstance(msg, StartMeasuring) else None
-            row = (_FIX, mono, self._wall(), self._clock_synced(mono), msg.frame, *msg[:6], mode)
-            self._append((*row, ap_time_s, ap_time_order))
+            ts, lon, lat, alt, sonar, confidence, *mode = msg  # mode: the 26-byte M's
+            self._append(
+                (
+                    _FIX,
+                    mono,
+                    self._wall(),
+                    self._clock_synced(mono),
+                    msg.frame,
+                    ts,
+                    lon,
+                    lat,
+                    alt,
+                    sonar,
+                    confidence,
+                    mode[0] if mode else None,
+                    ap_time_s,
+                    ap_time_order,
+                )
+            )
         except Exception as exc:
             self._errors.error("record_fix", "journal could not record a fix", error=repr(exc))
 
