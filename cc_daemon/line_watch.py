@@ -91,7 +91,8 @@ class LineWatch:
         self._carry_out(self.jog.frame(stick, now, self._status()), now)
 
     def stop_jog(self, now: float, reason: str) -> None:
-        self._carry_out(self.jog.cancel(now, self._status(), reason), now)
+        if self.jog.active:  # no winch to ask before the daemon has made one
+            self._carry_out(self.jog.cancel(now, self._status(), reason), now)
 
     def _carry_out(self, actions: list[JogAction], now: float) -> None:
         for action in actions:

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import random
 from bisect import bisect_left
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal
 
@@ -65,6 +65,18 @@ from cc_daemon.protocol import (
     Telemetry,
 )
 from cc_daemon.sim.mission import ORIGIN_ALT_M, Mission, Point, Station
+from cc_daemon.sim.violations import StationLog, Violation, ViolationKind
+
+__all__ = [
+    "FIRMWARES",
+    "Autopilot",
+    "AutopilotConfig",
+    "Firmware",
+    "Phase",
+    "StationLog",
+    "Violation",
+    "ViolationKind",
+]
 
 Firmware = Literal["ucm-2023", "manual"]
 FIRMWARES: tuple[Firmware, ...] = ("ucm-2023", "manual")
@@ -84,20 +96,6 @@ class Phase(StrEnum):
     DONE = "done"  # every station visited (or the run was ended)
 
 
-class ViolationKind(StrEnum):
-    CORRUPT_FRAME = "corrupt frame"
-    NO_ACK = "M not answered"
-    NO_PROBE_ANSWER = "S not answered"
-    REPORT_GAP = "depth reports stopped"
-    FINISHED_NOT_HOME = "R-F with the probe down"
-    DEPTH_OUT_OF_RANGE = "depth out of range"
-    NO_FINISH = "no R-F"
-    UNEXPECTED_FRAME = "unexpected frame"
-    UNEXPECTED_SKIP = "deep station not cast"
-    UNEXPECTED_CAST = "cast at a too-shallow station"
-    DUPLICATE_CAST = "more than one cast at a station"  # found in the daemon's journal
-
-
 # What a lost or mangled frame can explain, by where the noise was.
 _EXPLAINED_BY_INBOUND_LOSS = frozenset(
     {
@@ -108,24 +106,6 @@ _EXPLAINED_BY_INBOUND_LOSS = frozenset(
     }
 )
 _EXPLAINED_BY_OUTBOUND_LOSS = frozenset({ViolationKind.NO_ACK, ViolationKind.NO_PROBE_ANSWER})
-
-
-@dataclass(frozen=True, slots=True)
-class Violation:
-    time: float
-    kind: ViolationKind
-    detail: str
-    station: int | None  # 1-based station number, None between stations
-    excused_by: str | None = None  # injected noise or an unplugged cable explains it
-
-    @property
-    def excused(self) -> bool:
-        return self.excused_by is not None
-
-    def describe(self) -> str:
-        where = f"S{self.station} " if self.station is not None else ""
-        note = f" (excused: {self.excused_by})" if self.excused_by else ""
-        return f"{self.time:7.1f} s  {where}{self.kind}: {self.detail}{note}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -176,47 +156,6 @@ class AutopilotConfig:
 class _Outage:
     down: float
     up: float | None = None  # None while the cable is out
-
-
-@dataclass(slots=True)
-class StationLog:
-    """What happened at one station, as the autopilot saw it."""
-
-    station: Station
-    arrived_at: float | None = None
-    acked_at: float | None = None
-    finished_at: float | None = None
-    finish_depth_mm: int | None = None
-    reports: int = 0
-    max_depth_m: float = 0.0
-    m_sent: int = 0
-    s_sent: int = 0
-    stick_down: int = 0  # P-D frames sent (the scripted jog)
-    stick_up: int = 0
-    violations: list[Violation] = field(default_factory=list)
-
-    @property
-    def cast_duration_s(self) -> float | None:
-        """From R-O to R-F."""
-        if self.acked_at is None or self.finished_at is None:
-            return None
-        return self.finished_at - self.acked_at
-
-    @property
-    def problems(self) -> list[Violation]:
-        return [v for v in self.violations if not v.excused]
-
-    @property
-    def verdict(self) -> str:
-        if self.arrived_at is None:
-            return "not reached"
-        if self.finished_at is None:
-            return "no R-F"
-        if self.problems:
-            return "FAILED: " + ", ".join(sorted({str(v.kind) for v in self.problems}))
-        if self.reports == 0:
-            return "skipped: too shallow" if self.station.too_shallow else "skipped"
-        return "measured"
 
 
 class Autopilot:
