@@ -168,6 +168,8 @@ class SerialSettings(BaseModel):
     accept_g_alias: bool = False
     reconnect_initial_s: _Positive = 0.2
     reconnect_max_s: _Positive = 5.0
+    timestamp_order: Literal["auto", "big", "little"] = "auto"
+    jog_hold_s: _Positive = 2.5
 
     @model_validator(mode="after")
     def _check(self) -> SerialSettings:
@@ -342,6 +344,8 @@ class CastSettings(BaseModel):
     rearm_s: _NonNegative = 120.0
     rearm_distance_m: _NonNegative = 10.0
     depth_source: Literal["winch", "sonde"] = "winch"
+    rf_repeat_after_s: _Positive = 2.5
+    rf_repeats: Annotated[int, Field(ge=0, le=100)] = 3
 
     @model_validator(mode="after")
     def _check(self) -> CastSettings:

@@ -24,6 +24,7 @@ from typing import Any
 
 import structlog
 
+from cc_daemon.cast.jog import Stick
 from cc_daemon.cast.machine import (
     Action,
     Alarm,
@@ -40,15 +41,19 @@ from cc_daemon.cast.stations import StationMemory
 from cc_daemon.cast.timestamps import AutopilotTime
 from cc_daemon.clock import Clock, SystemClock
 from cc_daemon.config import Settings
+from cc_daemon.line_watch import TICK_S, LineWatch
 from cc_daemon.link import SerialLink
 from cc_daemon.logsetup import flush_rate_limited
 from cc_daemon.protocol import (
     Ack,
+    CorruptFrame,
     Finished,
     Message,
     Parser,
+    ProbeDown,
     ProbePosition,
     ProbePositionRequest,
+    ProbeUp,
     Sender,
     StartMeasuring,
     Telemetry,
@@ -100,6 +105,8 @@ class DaemonStatus:
     last_fix: Fix | None
     winch: WinchStatus | None = None
     stopping: bool = False
+    jog: str | None = None  # "up" / "down" while the RC stick jogs the probe
+    lost_start: str | None = None  # set while the autopilot may wait on an unread M
 
 
 class _ActiveCast:
@@ -141,6 +148,15 @@ class Daemon:
         self._started_at = self._clock.monotonic()
         self._time = AutopilotTime(self._started_at)
         self._stations = StationMemory(settings.cast.rearm_s, settings.cast.rearm_distance_m)
+        self._line = LineWatch(
+            settings,
+            write=self._write_again,
+            move_winch=lambda depth: self._winch.move_to(depth) if self._winch else None,
+            stop_winch=self._stop_motor,
+            winch_status=self._winch_status,
+            journal_event=self._journal_event,
+            notify=self._notifier.notify,
+        )
         self._parser = Parser(
             Sender.AUTOPILOT,
             accept_g_alias=settings.serial.accept_g_alias,
@@ -223,6 +239,9 @@ class Daemon:
                 sonar_task = sonar and tasks.create_task(
                     self._keep_running("sonar", sonar.run), name="sonar"
                 )
+                watch = tasks.create_task(
+                    self._keep_running("line-watch", self._watch_line), name="line-watch"
+                )
                 # Serving from here on; the port may come later (a late USB adapter).
                 self._notifier.notify("READY=1", f"STATUS=opening {self.link.port}")
                 await self._shutdown.wait()
@@ -235,6 +254,7 @@ class Daemon:
                     sonde.cancel()
                 if sonar_task:
                     sonar_task.cancel()
+                watch.cancel()
         finally:
             await self._close()
         return self._exit_code
@@ -258,6 +278,7 @@ class Daemon:
                     cast.task.cancel()
         elif not self._shutting_down:
             _log.info("shutting down: no new casts", cast_running=self._cast is not None)
+        self._line.stop_jog(self._clock.monotonic(), "shutdown")
         self._shutting_down = True
         self._shutdown.set()
 
@@ -358,6 +379,12 @@ class Daemon:
                 _log.warning("corrupt frames received", new=new, total=corrupt)
                 self._journal_event("corrupt_frames", new=new, total=corrupt)
 
+    async def _watch_line(self) -> None:
+        """The jog's dead-man stop, R-F repeats and the lost-M watch (`line_watch`)."""
+        while True:
+            await self._clock.sleep_until(self._clock.monotonic() + TICK_S)
+            self._line.tick(self._clock.monotonic(), cast_running=self._cast is not None)
+
     # ------------------------------------------------------------ status
 
     def snapshot(self) -> DaemonStatus:
@@ -379,6 +406,8 @@ class Daemon:
             last_fix=self.last_fix,
             winch=self._winch_status() if self._winch is not None else None,
             stopping=self._shutting_down,
+            jog=str(self._line.jog.stick) if self._line.jog.stick else None,
+            lost_start=self._line.lost_start_text(),
         )
 
     @property
@@ -412,7 +441,10 @@ class Daemon:
             self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
 
     def _on_data(self, data: bytes) -> None:
-        for message in self._parser.feed(data):
+        for message in self._parser.events(data):  # in stream order, errors included
+            if isinstance(message, CorruptFrame):
+                self._line.corrupt()
+                continue
             self.frames_in += 1
             try:
                 self._handle(message)
@@ -420,10 +452,15 @@ class Daemon:
                 _log.exception("error handling frame", frame=message.frame)
 
     def _send(self, message: CcMessage) -> bool:
-        sent = self.link.write(encode(message))
-        if sent:
-            self.frames_out += 1
+        sent = self._write_again(encode(message))
         _log.debug("frame out", sent=sent, **as_dict(message))
+        if isinstance(message, Finished):
+            self._line.finished_sent(message, self._clock.monotonic())
+        return sent
+
+    def _write_again(self, frame: bytes) -> bool:
+        sent = self.link.write(frame)
+        self.frames_out += sent
         return sent
 
     def _now_ts(self) -> int:
@@ -437,16 +474,17 @@ class Daemon:
     def _handle(self, message: Message) -> None:
         now = self._clock.monotonic()
         _log.debug("frame in", **as_dict(message))
+        self._time.observe(self._line.heard(message, now), now)
         if isinstance(message, ProbePositionRequest):
-            self._time.observe(message.timestamp_s, now)
             self._send(ProbePosition(self._time.at(now), self._depth_mm(self._probe_depth())))
         elif isinstance(message, Telemetry):
-            self._time.observe(message.timestamp_s, now)
             self._remember_fix(message, now)
         elif isinstance(message, StartMeasuring):
-            self._time.observe(message.timestamp_s, now)
             self._remember_fix(message, now)
+            self._line.stop_jog(now, "start-measuring")  # then as ever: home first
             self._on_start_measuring(message, now)
+        elif isinstance(message, ProbeUp | ProbeDown):
+            self._on_stick(Stick.UP if isinstance(message, ProbeUp) else Stick.DOWN, now)
         else:  # the parser listens to autopilot frames only
             _log.warning("unexpected frame from the autopilot side", frame=message.frame)
 
@@ -454,7 +492,22 @@ class Daemon:
         self.last_fix = Fix(message, now, self._clock.wall())
         with self._journaling("record_fix") as journal:
             if journal is not None:
-                journal.record_fix(message)
+                order = self._line.order
+                journal.record_fix(
+                    message,
+                    ap_time_s=order.decode(message.timestamp_s),
+                    ap_time_order=order.order,
+                )
+
+    def _on_stick(self, stick: Stick, now: float) -> None:
+        """`P-U` / `P-D`: no reply ever. In a cast, U means "probe up now"."""
+        cast = self._cast
+        if cast is None:
+            self._line.stick(stick, now)
+        elif stick is Stick.UP:
+            self._execute(cast, cast.machine.abort(now, "safety pilot: probe up (RC stick)"))
+        else:
+            _log.warning("probe-down stick ignored: a cast is running", cast_id=cast.cast_id)
 
     def _on_start_measuring(self, station: StartMeasuring, now: float) -> None:
         if self._cast is not None:
@@ -683,6 +736,7 @@ class Daemon:
                     reason=action.reason,
                 )
         self._stations.finished(cast.station, now, cast.cast_id)
+        self._line.cast_ended(now)
         if action.outcome is Outcome.COMPLETED:
             self.casts_completed += 1
         else:

@@ -1,7 +1,8 @@
 """Hypothesis strategies for the wire codec, and a model of the parser to check it against.
 
-The strategies cover the full range the wire can carry for every field of the
-seven messages. The model (`model_events`) is the resynchronisation rule of
+The strategies cover the full range the wire can carry for every field of
+every message, `P-M` in both its lengths (the manual's 25 bytes, the
+firmware's 26 with a mode byte). The model (`model_events`) is the resynchronisation rule of
 PROTOCOL.md written as plainly as possible over a whole stream: at each
 offset, a complete valid frame is taken whole, anything else costs one byte.
 Its frame check (`model_frame`) decodes with `int.from_bytes` and the
@@ -21,8 +22,10 @@ from cc_daemon.protocol import (
     DepthReport,
     Finished,
     Message,
+    ProbeDown,
     ProbePosition,
     ProbePositionRequest,
+    ProbeUp,
     Sender,
     StartMeasuring,
     Telemetry,
@@ -40,21 +43,36 @@ alt_mm = st.integers(-0xFFFFFF, 0xFFFFFF)  # sign byte + 3-byte magnitude
 sonar_mm = st.integers(0, 0xFFFFFFFF)
 confidence = st.integers(0, 100)
 depth_mm = st.integers(0, 0xFFFF)
+modes = st.none() | st.integers(0, 0xFF)  # None: the manual's 25-byte M
 
 # ------------------------------------------------------------------ messages
 
 telemetry = st.builds(Telemetry, timestamps, lon_e7, lat_e7, alt_mm, sonar_mm, confidence)
+
+
+def reads_as_25_bytes(frame: bytes) -> bool:
+    """A 26-byte `M` whose first 25 bytes also check out as the manual's `M`.
+
+    Only possible with some non-zero mode bytes (bytes 0-22 must sum to
+    256 * mode + the 26-byte checksum's high byte); the firmware always sends
+    mode 0, for which it cannot happen. The 25-byte reading wins such a tie.
+    """
+    return len(frame) == 26 and sum(frame[:23]) == int.from_bytes(frame[23:25], "big")
+
+
 start_measuring = st.builds(
-    StartMeasuring, timestamps, lon_e7, lat_e7, alt_mm, sonar_mm, confidence
-)
+    StartMeasuring, timestamps, lon_e7, lat_e7, alt_mm, sonar_mm, confidence, modes
+).filter(lambda message: not reads_as_25_bytes(encode(message)))
 probe_requests = st.builds(ProbePositionRequest, timestamps)
+probe_ups = st.builds(ProbeUp, timestamps)
+probe_downs = st.builds(ProbeDown, timestamps)
 acks = st.builds(Ack, timestamps)
 depth_reports = st.builds(DepthReport, timestamps, depth_mm)
 finished = st.builds(Finished, timestamps, depth_mm)
 probe_positions = st.builds(ProbePosition, timestamps, depth_mm)
 
 autopilot_messages: st.SearchStrategy[Message] = st.one_of(
-    telemetry, start_measuring, probe_requests
+    telemetry, start_measuring, probe_requests, probe_ups, probe_downs
 )
 cc_messages: st.SearchStrategy[Message] = st.one_of(acks, depth_reports, finished, probe_positions)
 messages: st.SearchStrategy[Message] = st.one_of(autopilot_messages, cc_messages)
@@ -62,7 +80,7 @@ messages: st.SearchStrategy[Message] = st.one_of(autopilot_messages, cc_messages
 # ------------------------------------------------------------------ garbage
 
 SYNCS = b"PR"
-TYPE_BYTES = b"TMSGOFP"
+TYPE_BYTES = b"TMSGOFPUD"
 
 
 @st.composite
@@ -96,7 +114,15 @@ garbage: st.SearchStrategy[bytes] = st.lists(
 ).map(b"".join)
 
 # Short frames with no field constraints, which garbage can form by accident.
-EATERS: list[tuple[bytes, int]] = [(b"RO", 6), (b"PS", 6), (b"RM", 8), (b"RF", 8), (b"RP", 8)]
+EATERS: list[tuple[bytes, int]] = [
+    (b"RO", 6),
+    (b"PS", 6),
+    (b"PU", 6),
+    (b"PD", 6),
+    (b"RM", 8),
+    (b"RF", 8),
+    (b"RP", 8),
+]
 
 
 @st.composite
@@ -148,6 +174,8 @@ AUTOPILOT_FRAMES: dict[bytes, tuple[int, type[Any]]] = {
     b"PT": (25, Telemetry),
     b"PM": (25, StartMeasuring),
     b"PS": (6, ProbePositionRequest),
+    b"PU": (6, ProbeUp),
+    b"PD": (6, ProbeDown),
 }
 G_ALIAS_FRAME: dict[bytes, tuple[int, type[Any]]] = {b"PG": (25, StartMeasuring)}
 CC_FRAMES: dict[bytes, tuple[int, type[Any]]] = {
@@ -188,8 +216,9 @@ def model_frame(frame: bytes, cls: type[Any]) -> Message | str:
     lon, lat, alt = _signed(frame[4:9]), _signed(frame[9:14]), _signed(frame[14:18])
     if lon is None or lat is None or alt is None:
         return "bad_field"
+    mode = (frame[23],) if len(frame) == 26 else ()  # the firmware's P-M
     try:
-        return cls(timestamp, lon, lat, alt, int.from_bytes(frame[18:22], "big"), frame[22])
+        return cls(timestamp, lon, lat, alt, int.from_bytes(frame[18:22], "big"), frame[22], *mode)
     except FieldError:  # latitude, longitude or confidence out of range
         return "bad_field"
 
@@ -204,7 +233,9 @@ def model_events(
     stream: bytes, senders: Sender = Sender.BOTH, *, accept_g_alias: bool = False
 ) -> list[ModelEvent]:
     """Every frame and error in a complete stream, in order, by the plain rule:
-    a valid frame is taken whole; any failed frame start costs one byte."""
+    a valid frame is taken whole; any failed frame start costs one byte. A
+    `P-M` whose 25-byte checksum fails is read again as 26 bytes (when the
+    stream has a 26th), and reported whole if that fails too."""
     table = frames_for(senders, accept_g_alias=accept_g_alias)
     syncs = {key[0] for key in table}
     out: list[ModelEvent] = []
@@ -229,6 +260,9 @@ def model_events(
             pos += 1
             continue
         result = model_frame(frame, cls)
+        if result == "bad_checksum" and stream[pos : pos + 2] == b"PM" and pos + 26 <= len(stream):
+            frame = stream[pos : pos + 26]
+            result = model_frame(frame, cls)
         out.append(ModelEvent(pos, frame, result))
         pos += length if not isinstance(result, str) else 1
     return out

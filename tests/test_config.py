@@ -22,14 +22,18 @@ ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE_TOML = ROOT / "config" / "cc-daemon.toml"
 # The configuration reference (docs/configuration.md): its key table and examples.
 CONFIG_REFERENCE = ROOT / "docs" / "configuration.md"
-# Sections documented on their own page, in the same table form.
-SECTION_REFERENCES = (ROOT / "docs" / "sonde.md", ROOT / "docs" / "sonar.md")
+# Sections and keys documented on their own page, in the same table form.
+SECTION_REFERENCES = (
+    ROOT / "docs" / "sonde.md",
+    ROOT / "docs" / "sonar.md",
+    ROOT / "docs" / "firmware.md",
+)
 PREFIX = "cc-daemon: bad configuration: "
 RATES = "1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600"
 LEVELS = '"debug", "info", "warning", "error" or "critical"'
 SERIAL_KEYS = (
     "port, baudrate, bytesize, parity, stopbits, accept_g_alias, "
-    "reconnect_initial_s, reconnect_max_s"
+    "reconnect_initial_s, reconnect_max_s, timestamp_order, jog_hold_s"
 )
 
 

@@ -81,7 +81,7 @@ def test_rows_written_match_what_was_recorded(tmp_path: Path, make_journal: Make
     wall0 = FakeClock().wall()
     assert fixes == [
         (1000.0, wall0, 0, "P-T", *FIX, 1),
-        (1001.0, wall0 + 1, 0, "P-M", *STATION, 1),
+        (1001.0, wall0 + 1, 0, "P-M", *STATION[:6], 1),
     ]
     (cast,) = query(
         db,
@@ -89,7 +89,7 @@ def test_rows_written_match_what_was_recorded(tmp_path: Path, make_journal: Make
         " sonar_confidence_pct, planned_depth_m, mode, plan_json, end_mono_s, end_wall_s,"
         " outcome, reached_depth_m, reason, session_id FROM casts",
     )
-    assert cast[:10] == (cast_id, 1001.0, *STATION, 6.0, "stepped")
+    assert cast[:10] == (cast_id, 1001.0, *STATION[:6], 6.0, "stepped")
     assert json.loads(cast[10]) == {"target_depth_m": 5.0, "where": str(tmp_path)}
     assert cast[11:] == (1005.0, wall0 + 5, "aborted", 6.0, "winch stalled", 1)
     assert query(db, "SELECT cast_id, mono_s, depth_m, phase FROM samples ORDER BY id") == [
@@ -393,3 +393,18 @@ def test_a_row_sqlite_refuses_is_set_aside_and_the_rest_written(tmp_path: Path) 
     events = [e["event"] for e in logs if e["log_level"] == "error"]
     assert events.count("journal: SQLite refused a row; it is dropped") == 2
     assert "journal: end of a cast that is not in the file" in events
+
+
+def test_fixes_keep_the_mode_byte_and_the_decoded_autopilot_time(
+    tmp_path: Path, make_journal: MakeJournal
+) -> None:
+    db = tmp_path / "journal.db"
+    journal = make_journal(db)
+    journal.open()
+    journal.record_fix(FIX, ap_time_s=0x4800, ap_time_order="little")
+    journal.record_fix(STATION._replace(mode=0), ap_time_s=73, ap_time_order="big")
+    journal.record_fix(STATION)
+    journal.close()
+    assert query(
+        db, "SELECT frame, measuring_mode, ap_time_s, ap_time_order FROM fixes ORDER BY id"
+    ) == [("P-T", None, 0x4800, "little"), ("P-M", 0, 73, "big"), ("P-M", None, None, None)]

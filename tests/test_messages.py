@@ -24,8 +24,10 @@ from cc_daemon.protocol import (
     Finished,
     Message,
     Parser,
+    ProbeDown,
     ProbePosition,
     ProbePositionRequest,
+    ProbeUp,
     Sender,
     StartMeasuring,
     Telemetry,
@@ -78,7 +80,7 @@ def sample_args(cls: type[Any]) -> tuple[int, ...]:
     """Valid fields after the timestamp for a message class."""
     if cls in (Telemetry, StartMeasuring):
         return MADRID[1:]
-    if cls in (ProbePositionRequest, Ack):
+    if cls in (ProbePositionRequest, ProbeUp, ProbeDown, Ack):
         return ()
     return (7,)
 
@@ -110,13 +112,16 @@ def test_encoded_frames_follow_the_layout(message: Message) -> None:
     data = encode(message)
     sync, kind = message.frame.split("-")
     assert data[:2] == (sync + kind).encode()
-    assert len(data) == {"P-T": 25, "P-M": 25, "P-S": 6, "R-O": 6}.get(message.frame, 8)
+    lengths = {"P-T": 25, "P-M": 25, "P-S": 6, "P-U": 6, "P-D": 6, "R-O": 6}
+    firmware_m = isinstance(message, StartMeasuring) and message.mode is not None
+    assert len(data) == (26 if firmware_m else lengths.get(message.frame, 8))
     assert int.from_bytes(data[2:4], "big") == message.timestamp_s
     assert int.from_bytes(data[-2:], "big") == sum(data[:-2]) % 65536
 
 
 @given(cs.start_measuring)
 def test_g_alias_round_trip(message: StartMeasuring) -> None:
+    message = message._replace(mode=None)  # the G hint is the manual's 25-byte frame
     data = encode(message, start_type=AutopilotType.START_MEASURING_G)
     assert data[1:2] == b"G"
     assert Parser(Sender.AUTOPILOT, accept_g_alias=True).feed(data) == [message]
@@ -300,7 +305,17 @@ def test_convenience_properties() -> None:
 
 
 def test_frame_names_and_dicts() -> None:
-    assert [cls.frame for cls in MESSAGE_TYPES] == ["P-T", "P-M", "P-S", "R-O", "R-M", "R-F", "R-P"]
+    assert [cls.frame for cls in MESSAGE_TYPES] == [
+        "P-T",
+        "P-M",
+        "P-S",
+        "P-U",
+        "P-D",
+        "R-O",
+        "R-M",
+        "R-F",
+        "R-P",
+    ]
     assert as_dict(Finished(72, 0)) == {"frame": "R-F", "timestamp_s": 72, "depth_mm": 0}
     assert as_dict(Telemetry(*MADRID)) == {
         "frame": "P-T",

@@ -32,7 +32,7 @@ from cc_daemon.protocol import (
 from tests import strategies as cs
 from tests.test_protocol_examples import EXAMPLES, MANUAL_P_T, frame
 
-MAX_FRAME = 25
+MAX_FRAME = 26
 # Streams of a few hundred bytes, some fed byte by byte: quick, but the suite
 # shares two cores with subprocess tests, and a slow example is not a bug.
 relaxed = settings(deadline=None)
@@ -413,3 +413,11 @@ def test_timestamps_never_cause_a_frame_to_be_dropped() -> None:
     times = [0, 0, 65535, 3, 0, 40000, 1]
     stream = b"".join(encode(ProbePositionRequest(t)) for t in times)
     assert Parser().feed(stream) == [ProbePositionRequest(t) for t in times]
+
+
+def test_the_properties_mix_both_lengths_of_m() -> None:
+    # Guards the strategies: every property above runs on 25- and 26-byte M frames.
+    from hypothesis import find
+
+    assert len(encode(find(cs.start_measuring, lambda m: m.mode is None))) == 25
+    assert len(encode(find(cs.start_measuring, lambda m: m.mode is not None))) == 26

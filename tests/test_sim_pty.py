@@ -212,13 +212,13 @@ async def test_frameport_reports_corrupt_frames_and_keeps_going(pair: PtyPair) -
 async def test_corrupt_frames_are_timed_no_earlier_than_the_flips_that_spoilt_them(
     pair: PtyPair,
 ) -> None:
-    flipper = BitFlipper(1.0, seed=1)  # a bit in bytes 0, 25, 50...
+    flipper = BitFlipper(1.0, seed=1)  # a bit in bytes 0, 26, 52...
     slave = _open_slave(pair.path)
     autopilot = await FramePort.over_fd(pair.master_fd, rx_filter=flipper)
     try:
         before = time.monotonic()
-        # Line noise in bytes 0 and 50, the R-M's type byte at 25: it is spoilt.
-        stream = bytes(24) + encode(DepthReport(72, 15820)) + bytes(19) + encode(Finished(73, 0))
+        # Line noise in bytes 0 and 52, the R-M's type byte at 26: it is spoilt.
+        stream = bytes(25) + encode(DepthReport(72, 15820)) + bytes(20) + encode(Finished(73, 0))
         os.write(slave, stream)
         got = await autopilot.receive(2.0)
         assert got is not None

@@ -6,7 +6,12 @@ Big-endian numbers; signed fields are a sign byte (00 / 01) plus a big-endian
 magnitude, never two's complement; the checksum is the sum of every preceding
 byte modulo 65536, most significant byte first. Altitude is decoded as sign +
 3-byte magnitude because the deployed firmware encodes it that way (identical
-bytes for every value the manual allows). See `shared/PROTOCOL.md`.
+bytes for every value the manual allows). See `docs/firmware.md`.
+
+`M` has two lengths: the manual's 25 bytes, and the deployed 2023 firmware's
+26 (a measuring-mode byte at offset 23, the checksum over bytes 0-23 at
+24-25). Its layout carries both readings; the parser picks the one whose
+checksum holds.
 
 This module is pure: `encode` builds bytes from a message, the `decode_*`
 functions build a message from a complete, checksum-verified frame inside a
@@ -30,8 +35,10 @@ from cc_daemon.protocol.messages import (
     DepthReport,
     Finished,
     Message,
+    ProbeDown,
     ProbePosition,
     ProbePositionRequest,
+    ProbeUp,
     StartMeasuring,
     Telemetry,
 )
@@ -51,6 +58,8 @@ class AutopilotType(IntEnum):
     START_MEASURING = 0x4D  # "M"
     START_MEASURING_G = 0x47  # "G": one firmware revision's start-measuring byte
     PROBE_REQUEST = 0x53  # "S"
+    PROBE_UP = 0x55  # "U": RC stick up (firmware 7ab06076 on)
+    PROBE_DOWN = 0x44  # "D": RC stick down
 
 
 class CcType(IntEnum):
@@ -63,7 +72,7 @@ class CcType(IntEnum):
 
 
 MIN_FRAME_LENGTH = 6
-MAX_FRAME_LENGTH = 25
+MAX_FRAME_LENGTH = 26  # the firmware's start-measuring frame
 
 # Layouts without the trailing checksum (verified separately, before decoding).
 # Position frames: sync, type, time, lon sign+mag, lat sign+mag,
@@ -74,6 +83,7 @@ WITH_DEPTH = struct.Struct(">BBHH")
 CHECKSUM = struct.Struct(">H")
 
 POSITION_LENGTH = POSITION.size + 2  # 25
+START_WITH_MODE_LENGTH = POSITION_LENGTH + 1  # 26: the firmware's P-M
 TIMESTAMP_ONLY_LENGTH = TIMESTAMP_ONLY.size + 2  # 6
 WITH_DEPTH_LENGTH = WITH_DEPTH.size + 2  # 8
 
@@ -94,26 +104,27 @@ def _sign_magnitude(value: int) -> tuple[int, int]:
 # ---------------------------------------------------------------- encoding
 
 
-def _encode_position(message: Telemetry | StartMeasuring, type_byte: int) -> bytes:
+def _encode_position(
+    message: Telemetry | StartMeasuring, type_byte: int, mode: int | None = None
+) -> bytes:
     lon_sign, lon = _sign_magnitude(message.lon_e7)
     lat_sign, lat = _sign_magnitude(message.lat_e7)
     alt_sign, alt = _sign_magnitude(message.alt_mm)
-    return _with_checksum(
-        POSITION.pack(
-            Sync.AUTOPILOT,
-            type_byte,
-            message.timestamp_s % TIMESTAMP_WIRE_MOD,
-            lon_sign,
-            lon,
-            lat_sign,
-            lat,
-            alt_sign,
-            alt >> 16,
-            alt & 0xFFFF,
-            message.sonar_distance_mm,
-            message.sonar_confidence_pct,
-        )
+    body = POSITION.pack(
+        Sync.AUTOPILOT,
+        type_byte,
+        message.timestamp_s % TIMESTAMP_WIRE_MOD,
+        lon_sign,
+        lon,
+        lat_sign,
+        lat,
+        alt_sign,
+        alt >> 16,
+        alt & 0xFFFF,
+        message.sonar_distance_mm,
+        message.sonar_confidence_pct,
     )
+    return _with_checksum(body if mode is None else body + bytes((mode,)))
 
 
 def _encode_timestamp_only(sync: int, type_byte: int, timestamp_s: int) -> bytes:
@@ -137,9 +148,14 @@ def encode(message: Message, *, start_type: int = AutopilotType.START_MEASURING)
         case Telemetry():
             return _encode_position(message, AutopilotType.TELEMETRY)
         case StartMeasuring():
-            return _encode_position(message, start_type)
+            # A mode byte makes it the firmware's 26-byte frame.
+            return _encode_position(message, start_type, message.mode)
         case ProbePositionRequest():
             return _encode_timestamp_only(Sync.AUTOPILOT, AutopilotType.PROBE_REQUEST, message[0])
+        case ProbeUp():
+            return _encode_timestamp_only(Sync.AUTOPILOT, AutopilotType.PROBE_UP, message[0])
+        case ProbeDown():
+            return _encode_timestamp_only(Sync.AUTOPILOT, AutopilotType.PROBE_DOWN, message[0])
         case Ack():
             return _encode_timestamp_only(Sync.CC, CcType.ACK, message[0])
         case DepthReport():
@@ -159,7 +175,7 @@ Decoder = Callable[[bytes | bytearray, int], Message]
 _new = tuple.__new__  # the parser validated the fields; skip the per-field checks
 
 
-def _position_decoder(cls: type[Telemetry] | type[StartMeasuring]) -> Decoder:
+def _position_decoder(cls: type[Telemetry]) -> Decoder:
     unpack_from = POSITION.unpack_from
 
     def decode(buf: bytes | bytearray, start: int) -> Message:
@@ -195,7 +211,29 @@ def _position_problem(lon_s: int, lon: int, lat_s: int, lat: int, alt_s: int) ->
     return f"lat_e7 magnitude {lat} is beyond 90 degrees"
 
 
-def _timestamp_decoder(cls: type[ProbePositionRequest] | type[Ack]) -> Decoder:
+def _start_decoders() -> tuple[Decoder, Decoder]:
+    """`P-M` read as 25 bytes (no mode) and as the firmware's 26 (mode at 23).
+
+    Both reuse the telemetry decoder, so `T`, the frame that matters for
+    speed, pays nothing for `M`'s second length.
+    """
+    position = _position_decoder(Telemetry)
+
+    def decode_25(buf: bytes | bytearray, start: int) -> Message:
+        return _new(StartMeasuring, (*position(buf, start), None))
+
+    def decode_26(buf: bytes | bytearray, start: int) -> Message:
+        return _new(StartMeasuring, (*position(buf, start), buf[start + 23]))
+
+    return decode_25, decode_26
+
+
+_DECODE_M_25, _DECODE_M_26 = _start_decoders()
+
+
+def _timestamp_decoder(
+    cls: type[ProbePositionRequest] | type[ProbeUp] | type[ProbeDown] | type[Ack],
+) -> Decoder:
     def decode(buf: bytes | bytearray, start: int) -> Message:
         return _new(cls, (buf[start + 2] << 8 | buf[start + 3],))
 
@@ -212,14 +250,21 @@ def _depth_decoder(cls: type[DepthReport] | type[Finished] | type[ProbePosition]
 
 
 class Layout:
-    """How to recognise and decode one (sync, type) pair."""
+    """How to recognise and decode one (sync, type) pair.
 
-    __slots__ = ("decode", "length", "name")
+    `longer` is a second reading one byte longer, tried when the checksum of
+    the first fails (only the firmware's 26-byte `P-M` has one).
+    """
 
-    def __init__(self, name: str, length: int, decode: Decoder) -> None:
+    __slots__ = ("decode", "length", "longer", "name")
+
+    def __init__(
+        self, name: str, length: int, decode: Decoder, longer: Decoder | None = None
+    ) -> None:
         self.name = name
         self.length = length
         self.decode = decode
+        self.longer = longer
 
 
 def _key(sync: int, type_byte: int) -> int:
@@ -231,16 +276,22 @@ AUTOPILOT_LAYOUTS: dict[int, Layout] = {
         "P-T", POSITION_LENGTH, _position_decoder(Telemetry)
     ),
     _key(Sync.AUTOPILOT, AutopilotType.START_MEASURING): Layout(
-        "P-M", POSITION_LENGTH, _position_decoder(StartMeasuring)
+        "P-M", POSITION_LENGTH, _DECODE_M_25, _DECODE_M_26
     ),
     _key(Sync.AUTOPILOT, AutopilotType.PROBE_REQUEST): Layout(
         "P-S", TIMESTAMP_ONLY_LENGTH, _timestamp_decoder(ProbePositionRequest)
+    ),
+    _key(Sync.AUTOPILOT, AutopilotType.PROBE_UP): Layout(
+        "P-U", TIMESTAMP_ONLY_LENGTH, _timestamp_decoder(ProbeUp)
+    ),
+    _key(Sync.AUTOPILOT, AutopilotType.PROBE_DOWN): Layout(
+        "P-D", TIMESTAMP_ONLY_LENGTH, _timestamp_decoder(ProbeDown)
     ),
 }
 
 G_ALIAS_LAYOUT: dict[int, Layout] = {
     _key(Sync.AUTOPILOT, AutopilotType.START_MEASURING_G): Layout(
-        "P-G", POSITION_LENGTH, _position_decoder(StartMeasuring)
+        "P-G", POSITION_LENGTH, _DECODE_M_25
     ),
 }
 

@@ -1,4 +1,4 @@
-"""The seven messages of the autopilot <-> companion-computer link, as values.
+"""The messages of the autopilot <-> companion-computer link, as values.
 
 This module owns the *meaning* of each frame: field names with their units,
 the ranges the wire can carry, and convenience views in degrees and metres. It
@@ -28,6 +28,7 @@ SONAR_MM_MAX = 0xFFFFFFFF
 CONFIDENCE_MAX = 100
 DEPTH_MM_WIRE_MAX = 0xFFFF
 TIMESTAMP_WIRE_MOD = 0x10000
+MODE_MAX = 0xFF
 
 
 def _check_int(field: str, value: object, low: int, high: int | None) -> None:
@@ -63,31 +64,30 @@ class _PositionFields(NamedTuple):
     sonar_confidence_pct: int
 
 
-class _PositionMessage(_Typed, _PositionFields):
-    """Fields shared by telemetry (`P-T`) and start measuring (`P-M`)."""
+def _check_position(
+    timestamp_s: int,
+    lon_e7: int,
+    lat_e7: int,
+    alt_mm: int,
+    sonar_distance_mm: int,
+    sonar_confidence_pct: int,
+) -> None:
+    _check_int("timestamp_s", timestamp_s, 0, None)
+    _check_int("lon_e7", lon_e7, -LON_E7_MAX, LON_E7_MAX)
+    _check_int("lat_e7", lat_e7, -LAT_E7_MAX, LAT_E7_MAX)
+    _check_int("alt_mm", alt_mm, -ALT_MM_MAX, ALT_MM_MAX)
+    _check_int("sonar_distance_mm", sonar_distance_mm, 0, SONAR_MM_MAX)
+    _check_int("sonar_confidence_pct", sonar_confidence_pct, 0, CONFIDENCE_MAX)
+
+
+class _PositionViews:
+    """Views in degrees and metres, shared by `P-T` and `P-M`."""
 
     __slots__ = ()
-    frame: ClassVar[str]
-
-    def __new__(
-        cls,
-        timestamp_s: int,
-        lon_e7: int,
-        lat_e7: int,
-        alt_mm: int,
-        sonar_distance_mm: int,
-        sonar_confidence_pct: int,
-    ) -> Any:
-        _check_int("timestamp_s", timestamp_s, 0, None)
-        _check_int("lon_e7", lon_e7, -LON_E7_MAX, LON_E7_MAX)
-        _check_int("lat_e7", lat_e7, -LAT_E7_MAX, LAT_E7_MAX)
-        _check_int("alt_mm", alt_mm, -ALT_MM_MAX, ALT_MM_MAX)
-        _check_int("sonar_distance_mm", sonar_distance_mm, 0, SONAR_MM_MAX)
-        _check_int("sonar_confidence_pct", sonar_confidence_pct, 0, CONFIDENCE_MAX)
-        return tuple.__new__(
-            cls,
-            (timestamp_s, lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct),
-        )
+    lon_e7: int
+    lat_e7: int
+    alt_mm: int
+    sonar_distance_mm: int
 
     @property
     def lon_deg(self) -> float:
@@ -106,18 +106,62 @@ class _PositionMessage(_Typed, _PositionFields):
         return self.sonar_distance_mm / 1000.0
 
 
-class Telemetry(_PositionMessage):
+class Telemetry(_Typed, _PositionViews, _PositionFields):
     """`P-T`: the autopilot's periodic fix and sonar reading."""
 
     __slots__ = ()
-    frame = "P-T"
+    frame: ClassVar[str] = "P-T"
+
+    def __new__(
+        cls,
+        timestamp_s: int,
+        lon_e7: int,
+        lat_e7: int,
+        alt_mm: int,
+        sonar_distance_mm: int,
+        sonar_confidence_pct: int,
+    ) -> Any:
+        fields = (timestamp_s, lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct)
+        _check_position(*fields)
+        return tuple.__new__(cls, fields)
 
 
-class StartMeasuring(_PositionMessage):
-    """`P-M` (or `P-G` on one firmware revision): lower the probe here."""
+class _StartFields(NamedTuple):
+    timestamp_s: int
+    lon_e7: int
+    lat_e7: int
+    alt_mm: int
+    sonar_distance_mm: int
+    sonar_confidence_pct: int
+    mode: int | None = None
+
+
+class StartMeasuring(_Typed, _PositionViews, _StartFields):
+    """`P-M` (or `P-G` on one firmware revision): lower the probe here.
+
+    `mode` is the measuring-mode byte of the firmware's 26-byte `M` (offset 23),
+    or None for the manual's 25-byte frame. Its meaning is undocumented (every
+    2023 firmware revision sends 0): it is recorded, never acted on.
+    """
 
     __slots__ = ()
-    frame = "P-M"
+    frame: ClassVar[str] = "P-M"
+
+    def __new__(
+        cls,
+        timestamp_s: int,
+        lon_e7: int,
+        lat_e7: int,
+        alt_mm: int,
+        sonar_distance_mm: int,
+        sonar_confidence_pct: int,
+        mode: int | None = None,
+    ) -> Any:
+        fields = (timestamp_s, lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct)
+        _check_position(*fields)
+        if mode is not None:
+            _check_int("mode", mode, 0, MODE_MAX)
+        return tuple.__new__(cls, (*fields, mode))
 
 
 class _TimestampFields(NamedTuple):
@@ -138,6 +182,23 @@ class ProbePositionRequest(_TimestampMessage):
 
     __slots__ = ()
     frame = "P-S"
+
+
+class ProbeUp(_TimestampMessage):
+    """`P-U`: the safety pilot holds the RC probe stick up (firmware 7ab06076 on).
+
+    Sent about once a second while the stick is held; no reply is expected.
+    """
+
+    __slots__ = ()
+    frame = "P-U"
+
+
+class ProbeDown(_TimestampMessage):
+    """`P-D`: the safety pilot holds the RC probe stick down. No reply is expected."""
+
+    __slots__ = ()
+    frame = "P-D"
 
 
 class Ack(_TimestampMessage):
@@ -187,7 +248,7 @@ class ProbePosition(_DepthMessage):
     frame = "R-P"
 
 
-AutopilotMessage = Telemetry | StartMeasuring | ProbePositionRequest
+AutopilotMessage = Telemetry | StartMeasuring | ProbePositionRequest | ProbeUp | ProbeDown
 CcMessage = Ack | DepthReport | Finished | ProbePosition
 Message = AutopilotMessage | CcMessage
 
@@ -195,6 +256,8 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     Telemetry,
     StartMeasuring,
     ProbePositionRequest,
+    ProbeUp,
+    ProbeDown,
     Ack,
     DepthReport,
     Finished,
@@ -203,5 +266,11 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
 
 
 def as_dict(message: Message) -> dict[str, Any]:
-    """The message as `{"frame": "P-T", field: value, ...}` (for JSON output)."""
-    return {"frame": message.frame, **message._asdict()}
+    """The message as `{"frame": "P-T", field: value, ...}` (for JSON output).
+
+    A 25-byte `P-M` has no mode byte, so it has no `mode` key either.
+    """
+    fields = message._asdict()
+    if fields.get("mode", 0) is None:
+        del fields["mode"]
+    return {"frame": message.frame, **fields}

@@ -8,8 +8,14 @@ handed to the `on_error` callback as a `CorruptFrame`, and the parser
 resynchronises at the next sync byte *after the failed frame's first byte*, so
 a valid frame that starts inside a corrupt one is still found.
 
+`P-M` comes in two lengths (the manual's 25 bytes, the deployed firmware's
+26 with a mode byte). When the 25-byte reading's checksum fails the parser
+waits for the 26th byte and tries that reading before calling the frame
+corrupt, so a firmware `M` is never split into a bad frame plus garbage,
+however the stream is chunked or paused.
+
 The buffer is bounded: between calls it holds less than one maximal frame
-(25 bytes), whatever was fed. At the end of the stream `close` reports a frame
+(26 bytes), whatever was fed. At the end of the stream `close` reports a frame
 cut short as truncated and still decodes any complete frame that starts
 inside it.
 
@@ -115,8 +121,8 @@ class Parser:
             layouts.update(CC_LAYOUTS)
             syncs.add(Sync.CC)
         # Plain tuples: unpacking one is cheaper than two attribute loads per frame.
-        self._layouts: dict[int, tuple[int, Decoder]] = {
-            key: (layout.length, layout.decode) for key, layout in layouts.items()
+        self._layouts: dict[int, tuple[int, Decoder, Decoder | None]] = {
+            key: (layout.length, layout.decode, layout.longer) for key, layout in layouts.items()
         }
         self._syncs = frozenset(syncs)
         self._search = _SYNC_PATTERNS[senders].search
@@ -130,7 +136,7 @@ class Parser:
 
     @property
     def pending(self) -> int:
-        """Bytes held waiting for the rest of a frame (always < 25)."""
+        """Bytes held waiting for the rest of a frame (always < 26)."""
         return len(self._buf)
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Message]:
@@ -173,8 +179,9 @@ class Parser:
             out.append(error)
 
         buf = self._buf
-        # feed's fast path may have left a lone non-sync byte unparsed: drop it first.
-        self._parse(out, report)  # type: ignore[arg-type]
+        # feed's fast path may have left a lone non-sync byte unparsed: drop it
+        # first. `final`: a 25-byte `M` is judged now, its 26th byte never comes.
+        self._parse(out, report, final=True)  # type: ignore[arg-type]
         while buf:
             report(
                 CorruptFrame(
@@ -185,7 +192,7 @@ class Parser:
             )
             del buf[:1]
             self.stats.bytes_discarded += 1
-            self._parse(out, report)  # type: ignore[arg-type]
+            self._parse(out, report, final=True)  # type: ignore[arg-type]
         self._need = 2
         return out
 
@@ -205,7 +212,21 @@ class Parser:
         if self.on_error is not None:
             self.on_error(error)
 
-    def _parse(self, out: list[Message], report: ErrorCallback) -> None:
+    @staticmethod
+    def _checksum_detail(buf: bytearray, pos: int, stop: int, two_lengths: bool) -> str:
+        sent = buf[stop - 2] << 8 | buf[stop - 1]
+        summed = sum(buf[pos : stop - 2]) & 0xFFFF
+        detail = f"checksum 0x{sent:04X}, bytes sum to 0x{summed:04X}"
+        if two_lengths and stop - pos == MAX_FRAME_LENGTH:
+            short = sum(buf[pos : stop - 3]) & 0xFFFF
+            sent_short = buf[stop - 3] << 8 | buf[stop - 2]
+            detail += (
+                f" (as 26 bytes; as 25 bytes: checksum 0x{sent_short:04X}, "
+                f"bytes sum to 0x{short:04X})"
+            )
+        return detail
+
+    def _parse(self, out: list[Message], report: ErrorCallback, *, final: bool = False) -> None:
         buf = self._buf
         end = len(buf)
         get = self._layouts.get
@@ -233,23 +254,31 @@ class Parser:
                 discarded += nxt - pos
                 pos = nxt
                 continue
-            length, decode = layout
+            length, decode, longer = layout
             stop = pos + length
             if stop > end:
                 break  # wait for the rest of the frame
             sent = buf[stop - 2] << 8 | buf[stop - 1]
             if sum(buf[pos : stop - 2]) & 0xFFFF != sent:
-                report(
-                    CorruptFrame(
-                        ErrorKind.BAD_CHECKSUM,
-                        bytes(buf[pos:stop]),
-                        f"checksum 0x{sent:04X}, bytes sum to "
-                        f"0x{sum(buf[pos : stop - 2]) & 0xFFFF:04X}",
+                if longer is not None and (stop < end or not final):
+                    # Maybe the firmware's 26-byte `M`: judge it on its 26th byte.
+                    stop += 1
+                    if stop > end:
+                        break  # wait for it, whatever pause the line takes
+                    sent = buf[stop - 2] << 8 | buf[stop - 1]
+                    if sum(buf[pos : stop - 2]) & 0xFFFF == sent:
+                        decode = longer
+                if decode is not longer:
+                    report(
+                        CorruptFrame(
+                            ErrorKind.BAD_CHECKSUM,
+                            bytes(buf[pos:stop]),
+                            self._checksum_detail(buf, pos, stop, longer is not None),
+                        )
                     )
-                )
-                discarded += 1
-                pos += 1
-                continue
+                    discarded += 1
+                    pos += 1
+                    continue
             try:
                 out.append(decode(buf, pos))
             except FrameError as exc:

@@ -7,7 +7,17 @@ caller: `poll(now)` returns the frames due at `now` (one per frame period),
 `finish(now)` closes the books. `now` is seconds since the mission started,
 from whatever clock the caller likes: tests pass plain numbers.
 
-Behaviour, as the firmware does it:
+Two firmware profiles (`AutopilotConfig.firmware`):
+- "ucm-2023", the deployed firmware (serial_com.c of 2023, see
+  docs/firmware.md): `T` every 1.1 s, timestamps little-endian on the wire,
+  the 26-byte `M` (mode byte 0) sent once per station, then silence (no `T`,
+  no `S`) until `R-F`; `R-O` and `R-M` are only stored. Optionally a scripted
+  RC-stick jog (`P-D` frames, then `P-U`) on arriving at the deepest
+  station, before `M` (`stick_jog`); the firmware expects no reply to them. A stray `R-F` (a repeat)
+  is accepted, as the firmware accepts it.
+- "manual", the behaviour below, as the manual describes it.
+
+Behaviour of the "manual" profile:
 - one frame per frame period (a second, as the firmware; the demo too);
 - cruising: `T` with the position along a straight transit, the altitude and
   the sonar reading;
@@ -37,8 +47,9 @@ from __future__ import annotations
 import random
 from bisect import bisect_left
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import StrEnum
+from typing import Literal
 
 from cc_daemon.protocol import (
     Ack,
@@ -47,33 +58,43 @@ from cc_daemon.protocol import (
     DepthReport,
     Finished,
     Message,
+    ProbeDown,
     ProbePosition,
     ProbePositionRequest,
+    ProbeUp,
     StartMeasuring,
     Telemetry,
 )
 from cc_daemon.sim.mission import ORIGIN_ALT_M, Mission, Point, SonarReading, Station
+from cc_daemon.sim.violations import StationLog, Violation, ViolationKind
+
+__all__ = [
+    "FIRMWARES",
+    "Autopilot",
+    "AutopilotConfig",
+    "Firmware",
+    "Phase",
+    "StationLog",
+    "Violation",
+    "ViolationKind",
+]
+
+Firmware = Literal["ucm-2023", "manual"]
+FIRMWARES: tuple[Firmware, ...] = ("ucm-2023", "manual")
+UCM_2023_FRAME_PERIOD_S = 1.1  # a 1 s interval checked on a 10 Hz tick
+
+
+def _little_endian(stamp: int) -> int:
+    """The value the manual's big-endian reading gives a little-endian timestamp."""
+    return (stamp & 0xFF) << 8 | stamp >> 8
 
 
 class Phase(StrEnum):
     CRUISING = "cruising"  # under way to the next station
+    JOGGING = "stick jog"  # at a station, the safety pilot jogs the probe first
     REQUESTING = "requesting"  # at a station, sending M until R-O
     CASTING = "casting"  # R-O received, holding position until R-F
     DONE = "done"  # every station visited (or the run was ended)
-
-
-class ViolationKind(StrEnum):
-    CORRUPT_FRAME = "corrupt frame"
-    NO_ACK = "M not answered"
-    NO_PROBE_ANSWER = "S not answered"
-    REPORT_GAP = "depth reports stopped"
-    FINISHED_NOT_HOME = "R-F with the probe down"
-    DEPTH_OUT_OF_RANGE = "depth out of range"
-    NO_FINISH = "no R-F"
-    UNEXPECTED_FRAME = "unexpected frame"
-    UNEXPECTED_SKIP = "deep station not cast"
-    UNEXPECTED_CAST = "cast at a too-shallow station"
-    DUPLICATE_CAST = "more than one cast at a station"  # found in the daemon's journal
 
 
 # What a lost or mangled frame can explain, by where the noise was.
@@ -86,24 +107,6 @@ _EXPLAINED_BY_INBOUND_LOSS = frozenset(
     }
 )
 _EXPLAINED_BY_OUTBOUND_LOSS = frozenset({ViolationKind.NO_ACK, ViolationKind.NO_PROBE_ANSWER})
-
-
-@dataclass(frozen=True, slots=True)
-class Violation:
-    time: float
-    kind: ViolationKind
-    detail: str
-    station: int | None  # 1-based station number, None between stations
-    excused_by: str | None = None  # injected noise or an unplugged cable explains it
-
-    @property
-    def excused(self) -> bool:
-        return self.excused_by is not None
-
-    def describe(self) -> str:
-        where = f"S{self.station} " if self.station is not None else ""
-        note = f" (excused: {self.excused_by})" if self.excused_by else ""
-        return f"{self.time:7.1f} s  {where}{self.kind}: {self.detail}{note}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,6 +132,10 @@ class AutopilotConfig:
     # Hold on station this long (sending T) before the first M, so a sonar read
     # over a real link (`sim.sonar_chain`) has heard the station, not the approach.
     settle_s: float = 0.0
+    firmware: Firmware = "manual"
+    stick_jog: bool = False  # ucm-2023: the safety pilot jogs the probe at the deepest station
+    # The scripted jog: so many frames of stick down, then a pause (T), stick up, a pause.
+    jog_script: tuple[tuple[str, int], ...] = (("D", 1), ("T", 2), ("U", 3), ("T", 3))
 
     def __post_init__(self) -> None:
         if self.frame_period_s <= 0:
@@ -141,51 +148,18 @@ class AutopilotConfig:
             raise ValueError(f"noise_margin_s={self.noise_margin_s} is invalid: allowed >= 0")
         if self.outage_grace_s < 0:
             raise ValueError(f"outage_grace_s={self.outage_grace_s} is invalid: allowed >= 0")
+        if self.firmware not in FIRMWARES:
+            raise ValueError(f"firmware={self.firmware!r} is invalid: allowed {FIRMWARES}")
+
+    @property
+    def ucm_2023(self) -> bool:
+        return self.firmware == "ucm-2023"
 
 
 @dataclass(slots=True)
 class _Outage:
     down: float
     up: float | None = None  # None while the cable is out
-
-
-@dataclass(slots=True)
-class StationLog:
-    """What happened at one station, as the autopilot saw it."""
-
-    station: Station
-    arrived_at: float | None = None
-    acked_at: float | None = None
-    finished_at: float | None = None
-    finish_depth_mm: int | None = None
-    reports: int = 0
-    max_depth_m: float = 0.0
-    m_sent: int = 0
-    s_sent: int = 0
-    violations: list[Violation] = field(default_factory=list)
-
-    @property
-    def cast_duration_s(self) -> float | None:
-        """From R-O to R-F."""
-        if self.acked_at is None or self.finished_at is None:
-            return None
-        return self.finished_at - self.acked_at
-
-    @property
-    def problems(self) -> list[Violation]:
-        return [v for v in self.violations if not v.excused]
-
-    @property
-    def verdict(self) -> str:
-        if self.arrived_at is None:
-            return "not reached"
-        if self.finished_at is None:
-            return "no R-F"
-        if self.problems:
-            return "FAILED: " + ", ".join(sorted({str(v.kind) for v in self.problems}))
-        if self.reports == 0:
-            return "skipped: too shallow" if self.station.too_shallow else "skipped"
-        return "measured"
 
 
 class Autopilot:
@@ -216,6 +190,11 @@ class Autopilot:
         self._flips_in: list[float] = []  # when bits were flipped on the daemon's frames
         self._flips_out: list[float] = []  # ... and on ours
         self._last_heard_at = 0.0  # the last frame (good or corrupt) from the daemon
+        self._jog_frames: list[str] = []  # what the stick still has to send
+        self._jog_index: int | None = None
+        if self.config.ucm_2023 and self.config.stick_jog:
+            depths = [s.water_depth_m for s in mission.stations]
+            self._jog_index = depths.index(max(depths))
         self.finished = False
         # The sonar module's latest reading (`sim.sonar_chain`); None: made up from the field.
         self.sonar: Callable[[], SonarReading] | None = None
@@ -282,7 +261,8 @@ class Autopilot:
         self._next_frame_at += period
         if self._next_frame_at <= now:  # we were not polled for a while: no burst of catch-up
             self._next_frame_at = now + period
-        return [self._frame(now)]
+        frame = self._frame(now)
+        return [] if frame is None else [frame]
 
     def on_frame(self, now: float, message: Message) -> None:
         """A frame from the daemon arrived at `now`."""
@@ -343,6 +323,9 @@ class Autopilot:
             return
         self._position = end
         self.phase = Phase.REQUESTING
+        if self.index == self._jog_index:
+            self.phase = Phase.JOGGING
+            self._jog_frames = [kind for kind, n in self.config.jog_script for _ in range(n)]
         self._frames_at_station = 0
         self.logs[self.index].arrived_at = self._leg_started_at + length / (
             self.config.boat_speed_m_s
@@ -363,10 +346,21 @@ class Autopilot:
 
     # ------------------------------------------------------------ frames out
 
-    def _frame(self, now: float) -> AutopilotMessage:
+    def _frame(self, now: float) -> AutopilotMessage | None:
         stamp = int(now) & 0xFFFF  # whole seconds since boot, as the firmware counts
         log = self.logs[self.index]
         settling = log.arrived_at is not None and now - log.arrived_at < self.config.settle_s
+        if self.config.ucm_2023:
+            stamp = _little_endian(stamp)
+            if self.phase is Phase.JOGGING:
+                return self._jog_frame(stamp, log)
+            waiting = self.phase is Phase.CASTING or (
+                self.phase is Phase.REQUESTING and log.m_sent > 0
+            )
+            if waiting and not self.config.resend_m_during_cast:
+                return None  # M once, then silence until R-F: no T, no S
+            if waiting:
+                return self._start_measuring(now, stamp, log)  # a later line resends
         if self.phase is Phase.REQUESTING and not settling:
             return self._start_measuring(now, stamp, log)
         if self.phase is Phase.CASTING:
@@ -386,8 +380,24 @@ class Autopilot:
         log.m_sent += 1
         if self._pending_m_since is None:
             self._pending_m_since = now
-        message: StartMeasuring = StartMeasuring(stamp, *self._fix(moving=False))
+        mode = 0 if self.config.ucm_2023 else None  # the firmware's 26-byte M, mode 0
+        message: StartMeasuring = StartMeasuring(stamp, *self._fix(moving=False), mode)
         return message
+
+    def _jog_frame(self, stamp: int, log: StationLog) -> AutopilotMessage:
+        kind = self._jog_frames.pop(0)
+        if not self._jog_frames:
+            self.phase = Phase.REQUESTING  # the stick is left alone: now the station
+        frame: AutopilotMessage
+        if kind == "D":
+            log.stick_down += 1
+            frame = ProbeDown(stamp)
+        elif kind == "U":
+            log.stick_up += 1
+            frame = ProbeUp(stamp)
+        else:
+            frame = Telemetry(stamp, *self._fix(moving=False))
+        return frame
 
     def _fix(self, *, moving: bool) -> tuple[int, int, int, int, int]:
         lon, lat = self._position.e7
@@ -456,7 +466,8 @@ class Autopilot:
                 f"R-F says the probe is at {message.depth_m:.3f} m: the boat would drag it",
             )
         if not self._at_station():
-            if not self._just_left(now):
+            # The 2023 firmware takes a repeated R-F as it takes any: no harm.
+            if not self._just_left(now) and not self.config.ucm_2023:
                 self._violation(now, ViolationKind.UNEXPECTED_FRAME, "R-F with no cast running")
             return
         self.probe_depth_m = message.depth_m
@@ -527,8 +538,9 @@ class Autopilot:
         ):
             self._gap_flagged = True
             # The station is still selected: resend M until the daemon
-            # answers, as the firmware does. A lost R-F is repeated then.
-            self._retrying = True
+            # answers, as a flight plan holding the station does. A lost R-F
+            # is repeated then. The 2023 firmware sends M once, never again.
+            self._retrying = not self.config.ucm_2023
             self._violation(
                 now,
                 ViolationKind.REPORT_GAP,

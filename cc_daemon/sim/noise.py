@@ -7,7 +7,7 @@ adds or reorders bytes (a real UART's noise flips bits; losing bytes is the
 cable's business).
 
 At most one bit is flipped in any `span` consecutive bytes (by default the
-longest frame, 25 bytes), so no frame ever carries more than one flipped bit.
+longest frame, 26 bytes: the firmware's `M`), so no frame ever carries more than one flipped bit.
 The protocol's checksum is a plain sum of the bytes: one flipped bit always
 changes it, two can cancel out. The simulated line is therefore one whose
 checksum catches every error, and a frame that passes its checksum is a frame

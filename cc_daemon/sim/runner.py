@@ -38,8 +38,11 @@ from typing import TYPE_CHECKING, Any, TextIO, cast
 from cc_daemon.protocol import Message
 from cc_daemon.sim import sondesummary
 from cc_daemon.sim.autopilot import (
+    FIRMWARES,
+    UCM_2023_FRAME_PERIOD_S,
     Autopilot,
     AutopilotConfig,
+    Firmware,
     Phase,
     StationLog,
     Violation,
@@ -134,6 +137,7 @@ class SimOptions:
     pace: Pace | None = None  # default FAST, or REALTIME with `realtime`
     sonar: bool = True  # the autopilot reads a Ping1D: simulated on a pty, or at sonar_port
     sonar_port: str | None = None  # a real Ping1D (a bench test of the whole chain)
+    firmware: Firmware = "ucm-2023"  # which autopilot firmware to behave as
 
     def __post_init__(self) -> None:
         if self.stations < 1:
@@ -494,6 +498,10 @@ class _Run:
             )
         elif ap.phase is Phase.CASTING:
             self.console.event(now, f"{station.name}: R-O, the daemon has the station")
+        elif ap.phase is Phase.JOGGING:
+            self.console.event(
+                now, f"{station.name}: the safety pilot jogs the probe: stick down, then up"
+            )
 
     def _view(self, now: float, status: DaemonStatus | None) -> ViewState:
         ap = self.autopilot
@@ -514,7 +522,9 @@ class _Run:
                 if status and status.planned_depth_m is not None
                 else (self.plans.get(station.number) if station and at_station else None)
             ),
-            daemon_phase=status.phase if status else "remote",
+            daemon_phase=(f"jog {status.jog}" if status.jog else status.phase)
+            if status
+            else "remote",
             daemon_link_up=status.link_up if status else self.port is not None,
             cable_plugged=self.unplugged_at is None,
             frames_out=sum(len(p.sent) for p in self.ports),
@@ -674,6 +684,12 @@ def build_summary(
                 ok=ok,
             )
         )
+    for log in ap.logs:
+        if log.stick_down or log.stick_up:
+            extra_notes.append(
+                f"S{log.station.number}: stick jog before the station: {log.stick_down} P-D "
+                f"then {log.stick_up} P-U frames (no reply expected)"
+            )
     if run.drop_at is not None and run.link_drops == 0:
         extra_notes.append(
             f"cable never pulled: the run ended at {now:.1f} s, "
@@ -726,11 +742,22 @@ def build_summary(
 # ---------------------------------------------------------------- --simulate
 
 
+def firmware_profile(firmware: Firmware, frame_period_s: float | None) -> dict[str, Any]:
+    """The autopilot settings a firmware profile brings: the deployed 2023
+    firmware's 1.1 s frame period (scaled with a faster pace's) and one
+    scripted stick jog; the manual's 1 s."""
+    if firmware == "ucm-2023":
+        scale = UCM_2023_FRAME_PERIOD_S
+        period = scale if frame_period_s is None else frame_period_s * scale
+        return {"firmware": firmware, "frame_period_s": period, "stick_jog": True}
+    return {"firmware": firmware, "frame_period_s": frame_period_s or 1.0}
+
+
 def autopilot_config(options: SimOptions, settings: Settings) -> AutopilotConfig:
     """The simulated autopilot's settings for a run against a daemon with `settings`."""
     pace = options.chosen_pace
     return AutopilotConfig(
-        frame_period_s=pace.frame_period_s,
+        **firmware_profile(options.firmware, pace.frame_period_s),
         boat_speed_m_s=pace.boat_speed_m_s,
         resend_m_during_cast=options.resend_m,
         finish_timeout_s=pace.finish_timeout_s(settings.cast.max_duration_s),
@@ -750,6 +777,7 @@ def _headline(options: SimOptions, mission: Mission) -> str:
         "--winch-stall" if options.winch_stall else "",
         "--winch-fail-home" if options.winch_fail_home else "",
         "--resend-m" if options.resend_m else "",
+        f"--firmware {options.firmware}",
     ]
     noise = " ".join(e for e in extras if e)
     return (
@@ -943,10 +971,11 @@ class AutopilotOnlyOptions:
     baudrate: int = 9600
     stations: int = 3
     seed: int = 1
-    frame_period_s: float = 1.0
+    frame_period_s: float | None = None  # None: the firmware's own (1.1 s or 1 s)
     boat_speed_m_s: float = 1.5
     resend_m: bool = False
     check_plan: bool = True
+    firmware: Firmware = "ucm-2023"
     finish_timeout_s: float = 900.0
     live: bool | None = None
     out: TextIO | None = None
@@ -957,8 +986,11 @@ async def run_autopilot(options: AutopilotOnlyOptions) -> int:
     """The simulated autopilot alone on a serial port, against a daemon elsewhere."""
     mission = make_mission(options.stations, options.seed)
     console = SimConsole(options.out, live=options.live)
+    profile = firmware_profile(options.firmware, None)
+    if options.frame_period_s is not None:  # given on the command line: as it is
+        profile["frame_period_s"] = options.frame_period_s
     config = AutopilotConfig(
-        frame_period_s=options.frame_period_s,
+        **profile,
         boat_speed_m_s=options.boat_speed_m_s,
         resend_m_during_cast=options.resend_m,
         check_plan=options.check_plan,
@@ -1037,6 +1069,14 @@ def _mission_arguments(group: argparse._ArgumentGroup) -> None:
         help="keep resending M during each cast, as a flight plan that keeps the station "
         "selected does (the daemon must still cast once per station)",
     )
+    group.add_argument(
+        "--firmware",
+        choices=FIRMWARES,
+        default="ucm-2023",
+        help="behave as the deployed 2023 firmware (26-byte M once, little-endian "
+        "timestamps, T every 1.1 s, silence until R-F, a stick jog at the first station) "
+        "or as the manual describes (ucm-2023)",
+    )
 
 
 def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
@@ -1102,6 +1142,7 @@ def options_from_args(args: argparse.Namespace, settings: Settings | None) -> Si
         winch_stall=args.winch_stall,
         winch_fail_home=args.winch_fail_home,
         resend_m=args.resend_m,
+        firmware=args.firmware,
         db=getattr(args, "db", None),
         live=False if args.plain else None,
         settings=settings,
@@ -1135,7 +1176,11 @@ def add_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
     group = p.add_argument_group("mission")
     _mission_arguments(group)
     group.add_argument(
-        "--frame-period", type=float, default=1.0, metavar="S", help="seconds per frame (1)"
+        "--frame-period",
+        type=float,
+        default=None,
+        metavar="S",
+        help="seconds per frame (1.1 for ucm-2023, 1 for manual)",
     )
     group.add_argument(
         "--boat-speed", type=float, default=1.5, metavar="M_S", help="transit speed (1.5 m/s)"
@@ -1166,6 +1211,7 @@ def _autopilot_handler(args: argparse.Namespace) -> int:
             frame_period_s=args.frame_period,
             boat_speed_m_s=args.boat_speed,
             resend_m=args.resend_m,
+            firmware=args.firmware,
             check_plan=not args.no_plan_check,
             finish_timeout_s=args.finish_timeout,
             live=False if args.plain else None,

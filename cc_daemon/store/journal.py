@@ -47,8 +47,8 @@ _SONAR = 6  # written in bulk with the fixes (`bulk_kinds`); 5 is the sonde's (`
 
 _INSERT_FIX = (
     "INSERT INTO fixes (session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s,"
-    " lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct)"
-    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
+    " lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct, measuring_mode,"
+    " ap_time_s, ap_time_order) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
 )
 _INSERT_CAST = (
     "INSERT INTO casts (id, session_id, start_mono_s, start_wall_s, start_clock_synced,"
@@ -100,6 +100,9 @@ _SPILL_LAYOUT: dict[int, tuple[str, tuple[str, ...]]] = {
             "alt_mm",
             "sonar_distance_mm",
             "sonar_confidence_pct",
+            "measuring_mode",
+            "ap_time_s",
+            "ap_time_order",
         ),
     ),
     _CAST: (
@@ -251,11 +254,36 @@ class Journal(BufferedWriter):
     # never takes the daemon down, and a bad argument or an injected clock that
     # fails is logged instead of ending a cast. Logging itself never raises.
 
-    def record_fix(self, msg: Telemetry | StartMeasuring) -> None:
-        """A telemetry fix (`P-T`) or a start-measuring frame (`P-M`), as received."""
+    def record_fix(
+        self,
+        msg: Telemetry | StartMeasuring,
+        *,
+        ap_time_s: int | None = None,
+        ap_time_order: str | None = None,
+    ) -> None:
+        """A telemetry fix (`P-T`) or a start-measuring frame (`P-M`), as received,
+        with the autopilot's clock as decoded in byte order `ap_time_order`."""
         try:
             mono = self._monotonic()
-            self._append((FIX, mono, self._wall(), self._clock_synced(mono), msg.frame, *msg))
+            ts, lon, lat, alt, sonar, confidence, *mode = msg  # mode: the 26-byte M's
+            self._append(
+                (
+                    FIX,
+                    mono,
+                    self._wall(),
+                    self._clock_synced(mono),
+                    msg.frame,
+                    ts,
+                    lon,
+                    lat,
+                    alt,
+                    sonar,
+                    confidence,
+                    mode[0] if mode else None,
+                    ap_time_s,
+                    ap_time_order,
+                )
+            )
         except Exception as exc:
             self._errors.error("record_fix", "journal could not record a fix", error=repr(exc))
 
@@ -278,7 +306,7 @@ class Journal(BufferedWriter):
                 plan_json = _to_json(plan)
             except (TypeError, ValueError) as exc:  # a circular plan, say
                 plan_json = _to_json({"unserialisable_plan": repr(exc)})
-            row = (_CAST, cast_id, mono, self._wall(), self._clock_synced(mono), *station)
+            row = (_CAST, cast_id, mono, self._wall(), self._clock_synced(mono), *station[:6])
             winch = (self._winch_backend, self._simulated)
             self._append((*row, planned_depth_m, mode, plan_json, *winch))
         except Exception as exc:

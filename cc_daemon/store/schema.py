@@ -135,10 +135,29 @@ _SONAR_READINGS: tuple[str, ...] = (
     "CREATE INDEX sonar_readings_by_wall ON sonar_readings(wall_s)",
 )
 
+# Version 6: what the deployed firmware adds (issue 8). `measuring_mode` is the
+# mode byte of the firmware's 26-byte `M` (NULL for a `T` or a 25-byte `M`);
+# `ap_time_s` is the autopilot's clock decoded in the byte order the daemon
+# used, named in `ap_time_order` ("big" or "little"), while `ap_timestamp_s`
+# stays the two bytes read big-endian as the manual says. Older rows keep NULLs.
+_V6: tuple[str, ...] = (
+    "ALTER TABLE fixes ADD COLUMN measuring_mode INTEGER",
+    "ALTER TABLE fixes ADD COLUMN ap_time_s INTEGER",
+    "ALTER TABLE fixes ADD COLUMN ap_time_order TEXT",
+)
+
 # MIGRATIONS[n] takes a file from version n to version n + 1. Version 3: the
 # sonde's readings (self-contained; see `store.sonde`); version 4: the winch
-# backend and whether the data are simulated; version 5: the sonar's readings.
-MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, sonde.MIGRATION, _V4, _SONAR_READINGS)
+# backend and whether the data are simulated; version 5: the sonar's readings;
+# version 6: the firmware's mode byte and the decoded autopilot clock.
+MIGRATIONS: tuple[tuple[str, ...], ...] = (
+    _V1,
+    _V2,
+    sonde.MIGRATION,
+    _V4,
+    _SONAR_READINGS,
+    _V6,
+)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
