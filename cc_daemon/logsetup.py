@@ -194,13 +194,16 @@ def _add_logger_name(logger: WrappedLogger, method_name: str, event_dict: EventD
 class _StdlibToStructlog(logging.Handler):
     """Feeds `logging` records (pyserial, asyncio...) into the structlog chain.
 
-    One chain for both means one format, one level and one rate limiter.
+    One chain for both means one format, one level and one rate limiter. A record
+    logged with ``extra={"fields": {...}}`` (as our own library code does, e.g. the
+    parser) keeps those fields as structured fields.
     """
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
             message = record.getMessage()
-            fields: dict[str, Any] = {}
+            extra = getattr(record, "fields", None)
+            fields: dict[str, Any] = dict(extra) if isinstance(extra, dict) else {}
             if record.exc_info:
                 fields["exc_info"] = record.exc_info
             # structlog knows only the five standard levels; a custom one (asyncio's
@@ -309,6 +312,7 @@ def reset_logging() -> None:
     with _installed.lock:
         if _installed.handler is not None:
             logging.getLogger().removeHandler(_installed.handler)
+            logging.getLogger().setLevel(logging.WARNING)  # the standard library's default
         _installed.handler = None
         _installed.limiter = None
         structlog.reset_defaults()
