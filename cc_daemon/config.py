@@ -145,6 +145,17 @@ def _empty_is_none(value: Any) -> Any:
 _SECTION = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 _Positive = Annotated[float, Field(gt=0)]
 _NonNegative = Annotated[float, Field(ge=0)]
+# Every period and duration has a floor and a ceiling a real boat could want; the
+# reasons are in config/cc-daemon.toml. A value that validates must also work: a
+# microsecond report period would saturate the line and a core.
+_HOUR_S = 3600.0
+_Dwell = Annotated[float, Field(ge=0, le=_HOUR_S)]
+
+
+def _no_nul(value: Any) -> Any:
+    if isinstance(value, str | os.PathLike) and "\0" in os.fspath(value):
+        raise _not_allowed("must not contain a NUL character")
+    return value
 
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
 # the README's configuration reference; tests keep both in step with these models.
@@ -155,14 +166,14 @@ class SerialSettings(BaseModel):
 
     model_config = _SECTION
 
-    port: Annotated[str, Field(min_length=1)] = "/dev/serial0"
+    port: Annotated[str, Field(min_length=1), AfterValidator(_no_nul)] = "/dev/serial0"
     baudrate: Annotated[int, AfterValidator(_check_baudrate)] = 9600
     bytesize: Annotated[int, Field(ge=5, le=8)] = 8
     parity: Annotated[Literal["N", "E", "O", "M", "S"], BeforeValidator(_upper)] = "N"
     stopbits: Annotated[float, AfterValidator(_check_stopbits)] = 1
     accept_g_alias: bool = False
-    reconnect_initial_s: _Positive = 0.2
-    reconnect_max_s: _Positive = 5.0
+    reconnect_initial_s: Annotated[float, Field(ge=0.05, le=60.0)] = 0.2
+    reconnect_max_s: Annotated[float, Field(ge=0.05, le=600.0)] = 5.0
 
     @model_validator(mode="after")
     def _check(self) -> SerialSettings:
@@ -215,14 +226,14 @@ class CastSettings(BaseModel):
     bottom_clearance_m: _NonNegative = 0.5
     min_depth_m: _NonNegative = 0.3
     mode: Literal["continuous", "stepped"] = "continuous"
-    bottom_dwell_s: _NonNegative = 10.0
+    bottom_dwell_s: _Dwell = 10.0
     step_m: _Positive = 1.0
-    dwell_s: _NonNegative = 5.0
-    soak_s: _NonNegative = 0.0
+    dwell_s: _Dwell = 5.0
+    soak_s: _Dwell = 0.0
     soak_depth_m: _NonNegative = 0.5
-    report_period_s: _Positive = 1.0
-    max_duration_s: _Positive = 600.0
-    rearm_s: _NonNegative = 120.0
+    report_period_s: Annotated[float, Field(ge=0.2, le=10.0)] = 1.0
+    max_duration_s: Annotated[float, Field(ge=1.0, le=6 * _HOUR_S)] = 600.0
+    rearm_s: Annotated[float, Field(ge=0, le=_HOUR_S)] = 120.0
     rearm_distance_m: _NonNegative = 10.0
 
     @model_validator(mode="after")
@@ -248,8 +259,14 @@ class StoreSettings(BaseModel):
 
     model_config = _SECTION
 
-    # None lets the journal choose its default location.
-    path: Annotated[Path | None, BeforeValidator(_empty_is_none)] = None
+    # None lets the journal choose its default location. Where the file may be
+    # (not a directory, a device, /proc...) is checked at start, not here: that
+    # needs the filesystem (see cc_daemon/preflight.py).
+    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
+    # Telemetry fixes written to the journal per second at most: the latest of
+    # each interval is kept, the rest counted. Bounds the disk a babbling
+    # autopilot can fill, and the memory the unwritten rows can take.
+    telemetry_rate_hz: Annotated[float, Field(ge=0.1, le=10.0)] = 2.0
 
 
 class LogSettings(BaseModel):
