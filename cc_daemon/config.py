@@ -157,6 +157,7 @@ def _no_nul(value: Any) -> Any:
         raise _not_allowed("must not contain a NUL character")
     return value
 
+
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
 # the README's configuration reference; tests keep both in step with these models.
 

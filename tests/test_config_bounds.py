@@ -71,7 +71,8 @@ def test_a_nul_character_in_a_path_is_refused_naming_the_key() -> None:
     found = problems(
         env={"CC_DAEMON_STORE__PATH": "survey\0.db", "CC_DAEMON_SERIAL__PORT": "/dev/tty\0S0"}
     )
+    nul = "must not contain a NUL character"
     assert found == [
-        "serial.port = /dev/tty\0S0 (from CC_DAEMON_SERIAL__PORT): must not contain a NUL character",
-        "store.path = survey\0.db (from CC_DAEMON_STORE__PATH): must not contain a NUL character",
+        f"serial.port = /dev/tty\0S0 (from CC_DAEMON_SERIAL__PORT): {nul}",
+        f"store.path = survey\0.db (from CC_DAEMON_STORE__PATH): {nul}",
     ]
