@@ -17,7 +17,7 @@ import argparse
 import asyncio
 import signal
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -129,16 +129,34 @@ def _load(args: argparse.Namespace) -> Any:
     return load_settings(args.config, flag_overrides(args))
 
 
-def _run_daemon(args: argparse.Namespace) -> int:
-    from cc_daemon.logsetup import configure_logging, resolve_format
-    from cc_daemon.service import Daemon, make_winch
+def _configure_daemon_logging(settings: Any) -> None:
+    from cc_daemon.logsetup import configure_logging, flush_rate_limited, resolve_format
 
-    settings = _load(args)
+    flush_rate_limited(everything=True)  # a reconfiguration must not lose held-back counts
     # "auto" follows stdout: a terminal gets the console renderer, journald
     # (or a pipe, or a file) gets JSON lines. The log itself goes to stderr.
     configure_logging(resolve_format(settings.log.format, sys.stdout), settings.log.level)
+
+
+def _run_daemon(args: argparse.Namespace) -> int:
+    from cc_daemon.preflight import check_paths, open_journal
+    from cc_daemon.reload import Reloader
+    from cc_daemon.service import Daemon, make_winch
+
+    # From the first moment: the SSH session that started us closing must not
+    # kill us (and a reload sent before the loop runs is simply not needed).
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    settings = _load(args)
+    check_paths(settings)  # a port or journal path that can never work: exit 2 now
+    _configure_daemon_logging(settings)
     make_winch(settings, clock=_NullClock())  # refuse an unusable backend before opening anything
-    return asyncio.run(_serve(Daemon(settings)))
+    daemon = Daemon(settings, journal=open_journal(settings))
+    reloader = Reloader(daemon, lambda: _load(args), _configure_daemon_logging)
+    try:
+        return asyncio.run(_serve(daemon, reloader))
+    finally:
+        # Closing the loop gave SIGHUP its default (fatal) action back.
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
 
 
 class _NullClock:
@@ -154,7 +172,7 @@ class _NullClock:
         return None
 
 
-async def _serve(daemon: Any) -> int:
+async def _serve(daemon: Any, reload: Callable[[], None] | None = None) -> int:
     import structlog
 
     log = structlog.get_logger("cc_daemon.cli")
@@ -176,8 +194,17 @@ async def _serve(daemon: Any) -> int:
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, on_signal, signum)
+    # SIGHUP (systemctl reload, or the terminal that started us closing) re-reads
+    # the configuration; it never stops the daemon nor interrupts a cast.
+    loop.add_signal_handler(signal.SIGHUP, reload or _ignore_hangup)
     code: int = await daemon.run()
     return code
+
+
+def _ignore_hangup() -> None:
+    import structlog
+
+    structlog.get_logger("cc_daemon.cli").info("SIGHUP ignored: nothing to reload")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

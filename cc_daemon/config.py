@@ -293,6 +293,10 @@ class Settings(BaseSettings):
     log: LogSettings = LogSettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
+    # What load_settings merged and where each value came from, so a check made
+    # later (the start-up checks of paths) can name a key as these errors do.
+    _merged: dict[str, Any] = PrivateAttr(default_factory=dict)
+    _origins: dict[_Key, _Origin] = PrivateAttr(default_factory=dict)
 
     @property
     def source_file(self) -> Path | None:
@@ -302,6 +306,17 @@ class Settings(BaseSettings):
         whether two Settings read from different files hold the same values.
         """
         return self._source_file
+
+    def describe(self, dotted_key: str) -> str:
+        """`key = value (from source)`, as a configuration error names a key."""
+        key = tuple(dotted_key.split("."))
+        if _lookup(self._merged, key) is _MISSING:
+            node: Any = self
+            for part in key:
+                node = getattr(node, part)
+            where = "default" if node == _default(key) else "given"
+            return f"{dotted_key} = {_render(node)} ({where})"
+        return _key_value_source(key, self._merged, self._origins)
 
     @classmethod
     def settings_customise_sources(
@@ -373,6 +388,7 @@ def load_settings(
         lines = [_describe(error, merged, origins) for error in exc.errors()]
         raise ConfigError("\n".join(_PREFIX + line for line in lines)) from None
     settings._source_file = source_file
+    settings._merged, settings._origins = merged, origins
     return settings
 
 

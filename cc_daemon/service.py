@@ -42,7 +42,7 @@ from cc_daemon.clock import Clock, SystemClock
 from cc_daemon.config import Settings
 from cc_daemon.errors import ConfigError
 from cc_daemon.link import SerialLink
-from cc_daemon.logsetup import flush_rate_limited
+from cc_daemon.logsetup import flush_rate_limited, output_loss
 from cc_daemon.protocol import (
     Ack,
     Finished,
@@ -177,6 +177,7 @@ class Daemon:
         self.port_losses = 0
         self._corrupt_reported = 0
         self._last_depth_m = 0.0
+        self._output_loss_reported = False
 
     # ------------------------------------------------------------ lifecycle
 
@@ -238,6 +239,25 @@ class Daemon:
             _log.info("shutting down: no new casts", cast_running=self._cast is not None)
         self._shutting_down = True
         self._shutdown.set()
+
+    @property
+    def shutting_down(self) -> bool:
+        return self._shutting_down
+
+    def reload(self, settings: Settings, applied: tuple[str, ...] = ()) -> None:
+        """Run with `settings` from now on; only live keys may differ (`cc_daemon.reload`).
+
+        The next cast plans with them; a running cast keeps what it started with.
+        """
+        self.settings = settings
+        self._stations.rearm_s = settings.cast.rearm_s
+        self._stations.rearm_distance_m = settings.cast.rearm_distance_m
+        if applied:
+            self._journal_event("config_reloaded", applied=list(applied))
+
+    def record_event(self, kind: str, **detail: Any) -> None:
+        """A journal event from outside the hub (a reload refused, say); never raises."""
+        self._journal_event(kind, **detail)
 
     async def _finish_running_cast(self) -> None:
         """Bring a running cast home; give up only on a probe that cannot come home."""
@@ -321,6 +341,7 @@ class Daemon:
             await asyncio.sleep(HOUSEKEEPING_TICK_S)
             flush_rate_limited()
             self._notifier.watchdog()  # every second: fine for any WatchdogSec >= 2
+            self._report_output_loss()
             tick += 1
             if tick % CORRUPT_SUMMARY_EVERY:
                 continue
@@ -330,6 +351,15 @@ class Daemon:
                 self._corrupt_reported = corrupt
                 _log.warning("corrupt frames received", new=new, total=corrupt)
                 self._journal_event("corrupt_frames", new=new, total=corrupt)
+
+    def _report_output_loss(self) -> None:
+        """A log stream gone for good (a closed terminal): say so where it can be seen."""
+        loss = output_loss()
+        if loss is None or self._output_loss_reported:
+            return
+        self._output_loss_reported = True
+        self._journal_event("log_output_lost", error=loss.error)
+        self._notifier.notify(f"STATUS=log output lost ({loss.error}); events go to the journal")
 
     # ------------------------------------------------------------ status
 
