@@ -114,6 +114,7 @@ class DaemonStatus:
     winch_fault: str | None
     port_losses: int
     last_fix: Fix | None
+    port_open_attempts: int = 0  # failed attempts to open the port since it was last open
 
 
 class _ActiveCast:
@@ -165,6 +166,7 @@ class Daemon:
             stopbits=serial_settings.stopbits,
             reconnect_initial_s=serial_settings.reconnect_initial_s,
             reconnect_max_s=serial_settings.reconnect_max_s,
+            on_waiting=lambda text: self._notifier.notify(f"STATUS={text}"),
         )
         self._cast: _ActiveCast | None = None
         self._tasks: asyncio.TaskGroup | None = None
@@ -380,6 +382,7 @@ class Daemon:
             winch_fault=cast.machine.winch_fault if cast else None,
             port_losses=self.port_losses,
             last_fix=self.last_fix,
+            port_open_attempts=self.link.waiting.attempts,
         )
 
     @property
