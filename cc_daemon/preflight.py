@@ -136,7 +136,7 @@ def open_journal(settings: Settings) -> Journal:
     mid-survey. A journal that fails later keeps its in-memory fallback.
     """
     path = settings.store.path or default_store_path()
-    journal = Journal(path)
+    journal = Journal(path, telemetry_rate_hz=settings.store.telemetry_rate_hz)
     recovered = journal.open()
     health = journal.health()
     if not health.writable:

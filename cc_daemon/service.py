@@ -189,7 +189,7 @@ class Daemon:
             self._winch = make_winch(self.settings, self._clock)
         if self._journal is None:
             path = self.settings.store.path or default_store_path()
-            self._journal = Journal(path)
+            self._journal = Journal(path, telemetry_rate_hz=self.settings.store.telemetry_rate_hz)
             for cast_id in self._journal.open():
                 _log.warning("cast left unfinished by a previous run", cast_id=cast_id)
         self._journal.record_event("daemon_started", port=self.settings.serial.port)
@@ -254,6 +254,9 @@ class Daemon:
         self.settings = settings
         self._stations.rearm_s = settings.cast.rearm_s
         self._stations.rearm_distance_m = settings.cast.rearm_distance_m
+        with self._journaling("set_telemetry_rate") as journal:
+            if journal is not None:
+                journal.set_telemetry_rate(settings.store.telemetry_rate_hz)
         if applied:
             self._journal_event("config_reloaded", applied=list(applied))
 
