@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import signal
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,33 +46,99 @@ def _add_decode(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.add_argument("--accept-g-alias", action="store_true", help="decode P-G as start measuring")
     p.add_argument("--port", help="decode a live serial line until Ctrl-C")
-    p.add_argument("--baudrate", type=int, default=9600, help="baud rate for --port (9600)")
+    p.add_argument("--baudrate", type=int, help="baud rate for --port (9600)")
+    p.add_argument(
+        "--shared",
+        action="store_true",
+        help="with --port: read even if another process has the port open (each byte goes "
+        "to one reader only: it steals that process's frames)",
+    )
     p.set_defaults(handler=_run_decode)
 
 
+def _decode_usage_problem(args: argparse.Namespace) -> str | None:
+    """Options that do not apply together are refused, not ignored."""
+    if args.port:
+        if args.hex:
+            return "hex arguments and --port do not go together: decode one or the other"
+        if args.hex_stdin:
+            return "--hex reads stdin; with --port the bytes come from the port"
+        return None
+    for option, given in (("--baudrate", args.baudrate is not None), ("--shared", args.shared)):
+        if given:
+            return f"{option} applies only with --port"
+    if args.hex and args.hex_stdin:
+        return "--hex reads hex text from stdin; hex arguments are decoded as they are"
+    return None
+
+
 def _run_decode(args: argparse.Namespace) -> int:
+    from cc_daemon.decode import HEX_SNIFF_BYTES, looks_like_hex, summary_line
     from cc_daemon.logsetup import configure_logging
+    from cc_daemon.protocol import Parser, Sender
 
     # Decoded lines own stdout (it may be piped into jq); diagnostics go to stderr.
     configure_logging("auto", "warning", sys.stderr)
+    problem = _decode_usage_problem(args)
+    if problem is not None:
+        print(f"cc-daemon decode: {problem}", file=sys.stderr)
+        return EXIT_USAGE
     try:
         if args.port:
             from cc_daemon.live_decode import decode_port
 
+            baudrate = _checked_baudrate(args.baudrate)
             return decode_port(
-                args.port, args.baudrate, as_json=args.json, accept_g_alias=args.accept_g_alias
+                args.port,
+                baudrate,
+                as_json=args.json,
+                accept_g_alias=args.accept_g_alias,
+                shared=args.shared,
             )
         chunks: Iterable[bytes]
+        head = bytearray()
         if args.hex:
             chunks = [parse_hex(" ".join(args.hex))]
         else:
-            chunks = read_stdin_chunks(sys.stdin.buffer, hex_text=args.hex_stdin)
-        return print_events(
-            decode_chunks(chunks, accept_g_alias=args.accept_g_alias), as_json=args.json
-        )
+            raw = read_stdin_chunks(sys.stdin.buffer, hex_text=args.hex_stdin)
+            chunks = raw if args.hex_stdin else _keeping_head(raw, head, HEX_SNIFF_BYTES)
+        parser = Parser(Sender.BOTH, accept_g_alias=args.accept_g_alias)
+        status = print_events(decode_chunks(chunks, parser=parser), as_json=args.json)
+        stats = parser.stats
+        print(summary_line(stats), file=sys.stderr)
+        if stats.frames_decoded == 0 and not stats.errors and looks_like_hex(bytes(head)):
+            print(
+                f"cc-daemon decode: 0 frames in {stats.bytes_received} bytes; "
+                "this looks like hex text: use --hex",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
+        return status
     except HexInputError as exc:
         print(f"cc-daemon decode: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:
+        # The reader of our stdout left (`| head -1`): not an error. Point stdout
+        # at /dev/null so the interpreter's final flush does not complain.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+def _keeping_head(chunks: Iterable[bytes], head: bytearray, size: int) -> Iterator[bytes]:
+    """The chunks unchanged, keeping a copy of the first `size` bytes in `head`."""
+    for chunk in chunks:
+        if len(head) < size:
+            head += chunk[: size - len(head)]
+        yield chunk
+
+
+def _checked_baudrate(baudrate: int | None) -> int:
+    """--baudrate for decode, validated exactly as the daemon's serial.baudrate."""
+    from cc_daemon.config import load_settings
+
+    # Only the flag: no file, no environment (decode reads neither).
+    settings = load_settings(None, {"serial": {"baudrate": baudrate}}, env={}, search_paths=())
+    return settings.serial.baudrate
 
 
 def _add_daemon_options(parser: argparse.ArgumentParser) -> None:
@@ -201,6 +268,18 @@ async def _serve(daemon: Any, reload: Callable[[], None] | None = None) -> int:
     return code
 
 
+def _simulate_only_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:
+    """The --simulate options given without --simulate (they would be ignored)."""
+    given: list[str] = []
+    for group in parser._action_groups:
+        if group.title != "--simulate options":
+            continue
+        for action in group._group_actions:
+            if getattr(args, action.dest, action.default) != action.default:
+                given.append(action.option_strings[0])
+    return given
+
+
 def _ignore_hangup() -> None:
     import structlog
 
@@ -210,6 +289,10 @@ def _ignore_hangup() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    stray = [] if args.simulate else _simulate_only_options(parser, args)
+    if stray:
+        print(f"cc-daemon: {', '.join(stray)} applies only with --simulate", file=sys.stderr)
+        return EXIT_USAGE
     try:
         handler = getattr(args, "handler", None)
         if handler is not None:

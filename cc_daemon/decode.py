@@ -2,8 +2,11 @@
 
 Input is hex on the command line, a byte stream on stdin (raw bytes, or hex
 text with `--hex`), or a live serial line (`--port`). Output is one line per
-frame or per error, plain or JSON. The exit status says whether any corrupt
-frame was found: 0 clean, 1 errors found.
+frame or per error, plain or JSON, then a summary line on stderr (`# N frames,
+M errors (...), K bytes skipped`, the same for every input). The exit status
+says whether any corrupt frame was found: 0 clean, 1 errors found; raw input
+that decodes to nothing and looks like hex text is a usage error (2), pointing
+at `--hex`.
 """
 
 from __future__ import annotations
@@ -14,9 +17,27 @@ import sys
 from collections.abc import Iterable, Iterator
 from typing import IO, Any
 
-from cc_daemon.protocol import CorruptFrame, Message, Parser, Sender, as_dict
+from cc_daemon.protocol import CorruptFrame, Message, Parser, ParserStats, Sender, as_dict
 
 _SEPARATORS = re.compile(r"[\s,:;]+")
+# Hex text as people paste it: digits, blanks, separators, 0x prefixes.
+_HEX_TEXT = re.compile(rb"[\s,:;]*(?:(?:0[xX])?[0-9a-fA-F]+[\s,:;]*)+")
+HEX_SNIFF_BYTES = 4096  # how much of a raw stream is kept to tell hex text
+
+
+def looks_like_hex(head: bytes) -> bool:
+    """Whether raw input is in fact hex text (`50 53 00 48 00 EB`), from its first bytes."""
+    return _HEX_TEXT.fullmatch(head) is not None and any(c in b"0123456789" for c in head)
+
+
+def summary_line(stats: ParserStats) -> str:
+    """`# N frames, M errors (...), K bytes skipped`: the last line of every decode."""
+    return (
+        f"# {stats.frames_decoded} frames, {stats.errors} errors "
+        f"({stats.bad_checksum} bad checksum, {stats.unknown_type} unknown type, "
+        f"{stats.bad_field} bad field, {stats.truncated} truncated), "
+        f"{stats.bytes_discarded} bytes skipped"
+    )
 
 
 class HexInputError(ValueError):
@@ -58,10 +79,14 @@ def format_event(event: Message | CorruptFrame, *, as_json: bool) -> str:
 
 
 def decode_chunks(
-    chunks: Iterable[bytes], *, accept_g_alias: bool = False
+    chunks: Iterable[bytes], *, accept_g_alias: bool = False, parser: Parser | None = None
 ) -> Iterator[Message | CorruptFrame]:
-    """Every frame and error in a stream, in order, ending with any truncated frame."""
-    parser = Parser(Sender.BOTH, accept_g_alias=accept_g_alias)
+    """Every frame and error in a stream, in order, ending with any truncated frame.
+
+    Pass a `parser` (listening to both senders) to read its statistics afterwards.
+    """
+    if parser is None:
+        parser = Parser(Sender.BOTH, accept_g_alias=accept_g_alias)
     for chunk in chunks:
         yield from parser.events(chunk)
     yield from parser.close()
