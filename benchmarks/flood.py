@@ -68,6 +68,13 @@ def journal_bytes(directory: Path) -> int:
     )
 
 
+def write_all(fd: int, data: bytes) -> None:
+    """Whole frames only: a pty may take part of a write."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
+
+
 class Flood:
     """The writer and reader threads, and what they saw."""
 
@@ -87,9 +94,9 @@ class Flood:
         )
         request = encode(ProbePositionRequest(7))
         while not self.stop.is_set():
-            os.write(self.fd, fixes)  # blocks while the pty is full: full speed, no faster
+            write_all(self.fd, fixes)  # blocks while the pty is full: full speed, no faster
             with self._lock:
-                os.write(self.fd, request)
+                write_all(self.fd, request)
                 self.asked.append(time.perf_counter())
             self.frames_sent += CHUNK_FRAMES + 1
             self.bytes_sent += len(fixes) + len(request)
