@@ -159,7 +159,7 @@ def _no_nul(value: Any) -> Any:
 
 
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
-# the README's configuration reference; tests keep both in step with these models.
+# docs/configuration.md; tests keep both in step with these models.
 
 
 class SerialSettings(BaseModel):

@@ -20,11 +20,8 @@ from cc_daemon.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE_TOML = ROOT / "config" / "cc-daemon.toml"
-# The README's configuration reference; repointed to README.md once merged there.
-CONFIG_REFERENCE = ROOT / "README.md"
-# Key tables may also be in the docs pages (e.g. the bounds in docs/signals.md);
-# a key listed in several places must have the same default in each.
-REFERENCE_PAGES = [CONFIG_REFERENCE, *sorted((ROOT / "docs").glob("*.md"))]
+# The configuration reference (docs/configuration.md): its key table and examples.
+CONFIG_REFERENCE = ROOT / "docs" / "configuration.md"
 PREFIX = "cc-daemon: bad configuration: "
 RATES = "1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600"
 LEVELS = '"debug", "info", "warning", "error" or "critical"'
@@ -504,14 +501,12 @@ def _leaf_names(section: dict[str, Any], prefix: str = "") -> Iterator[str]:
 
 
 def reference_rows() -> dict[str, str]:
-    """key -> default column of the key tables in the README and the docs pages."""
+    """key -> default column of the reference's key table."""
     rows: dict[str, str] = {}
-    for page in REFERENCE_PAGES:
-        for line in page.read_text(encoding="utf-8").splitlines():
-            row = re.match(r"\| `([\w.]+)` \| ([^|]*) \|", line)
-            if row and "." in row[1]:
-                default = row[2].strip()
-                assert rows.setdefault(row[1], default) == default, (page.name, row[1])
+    for line in CONFIG_REFERENCE.read_text(encoding="utf-8").splitlines():
+        row = re.match(r"\| `([\w.]+)` \| ([^|]*) \|", line)
+        if row and "." in row[1]:
+            rows[row[1]] = row[2].strip()
     return rows
 
 
