@@ -18,7 +18,7 @@ import asyncio
 import os
 import signal
 import sys
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,30 +56,21 @@ def _add_decode(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.set_defaults(handler=_run_decode)
 
 
-def _decode_usage_problem(args: argparse.Namespace) -> str | None:
-    """Options that do not apply together are refused, not ignored."""
-    if args.port:
-        if args.hex:
-            return "hex arguments and --port do not go together: decode one or the other"
-        if args.hex_stdin:
-            return "--hex reads stdin; with --port the bytes come from the port"
-        return None
-    for option, given in (("--baudrate", args.baudrate is not None), ("--shared", args.shared)):
-        if given:
-            return f"{option} applies only with --port"
-    if args.hex and args.hex_stdin:
-        return "--hex reads hex text from stdin; hex arguments are decoded as they are"
-    return None
-
-
 def _run_decode(args: argparse.Namespace) -> int:
-    from cc_daemon.decode import HEX_SNIFF_BYTES, looks_like_hex, summary_line
+    from cc_daemon.decode import (
+        HEX_SNIFF_BYTES,
+        checked_baudrate,
+        keeping_head,
+        looks_like_hex,
+        summary_line,
+        usage_problem,
+    )
     from cc_daemon.logsetup import configure_logging
     from cc_daemon.protocol import Parser, Sender
 
     # Decoded lines own stdout (it may be piped into jq); diagnostics go to stderr.
     configure_logging("auto", "warning", sys.stderr)
-    problem = _decode_usage_problem(args)
+    problem = usage_problem(args)
     if problem is not None:
         print(f"cc-daemon decode: {problem}", file=sys.stderr)
         return EXIT_USAGE
@@ -87,7 +78,7 @@ def _run_decode(args: argparse.Namespace) -> int:
         if args.port:
             from cc_daemon.live_decode import decode_port
 
-            baudrate = _checked_baudrate(args.baudrate)
+            baudrate = checked_baudrate(args.baudrate)
             return decode_port(
                 args.port,
                 baudrate,
@@ -101,7 +92,7 @@ def _run_decode(args: argparse.Namespace) -> int:
             chunks = [parse_hex(" ".join(args.hex))]
         else:
             raw = read_stdin_chunks(sys.stdin.buffer, hex_text=args.hex_stdin)
-            chunks = raw if args.hex_stdin else _keeping_head(raw, head, HEX_SNIFF_BYTES)
+            chunks = raw if args.hex_stdin else keeping_head(raw, head, HEX_SNIFF_BYTES)
         parser = Parser(Sender.BOTH, accept_g_alias=args.accept_g_alias)
         status = print_events(decode_chunks(chunks, parser=parser), as_json=args.json)
         stats = parser.stats
@@ -122,23 +113,6 @@ def _run_decode(args: argparse.Namespace) -> int:
         # at /dev/null so the interpreter's final flush does not complain.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-
-
-def _keeping_head(chunks: Iterable[bytes], head: bytearray, size: int) -> Iterator[bytes]:
-    """The chunks unchanged, keeping a copy of the first `size` bytes in `head`."""
-    for chunk in chunks:
-        if len(head) < size:
-            head += chunk[: size - len(head)]
-        yield chunk
-
-
-def _checked_baudrate(baudrate: int | None) -> int:
-    """--baudrate for decode, validated exactly as the daemon's serial.baudrate."""
-    from cc_daemon.config import load_settings
-
-    # Only the flag: no file, no environment (decode reads neither).
-    settings = load_settings(None, {"serial": {"baudrate": baudrate}}, env={}, search_paths=())
-    return settings.serial.baudrate
 
 
 def _add_daemon_options(parser: argparse.ArgumentParser) -> None:

@@ -11,6 +11,7 @@ at `--hex`.
 
 from __future__ import annotations
 
+import argparse
 import json
 import re
 import sys
@@ -115,3 +116,36 @@ def print_events(
             status = 1
         print(format_event(event, as_json=as_json), file=out, flush=True)
     return status
+
+
+def usage_problem(args: argparse.Namespace) -> str | None:
+    """Options that do not apply together are refused, not ignored."""
+    if args.port:
+        if args.hex:
+            return "hex arguments and --port do not go together: decode one or the other"
+        if args.hex_stdin:
+            return "--hex reads stdin; with --port the bytes come from the port"
+        return None
+    for option, given in (("--baudrate", args.baudrate is not None), ("--shared", args.shared)):
+        if given:
+            return f"{option} applies only with --port"
+    if args.hex and args.hex_stdin:
+        return "--hex reads hex text from stdin; hex arguments are decoded as they are"
+    return None
+
+
+def keeping_head(chunks: Iterable[bytes], head: bytearray, size: int) -> Iterator[bytes]:
+    """The chunks unchanged, keeping a copy of the first `size` bytes in `head`."""
+    for chunk in chunks:
+        if len(head) < size:
+            head += chunk[: size - len(head)]
+        yield chunk
+
+
+def checked_baudrate(baudrate: int | None) -> int:
+    """--baudrate for decode, validated exactly as the daemon's serial.baudrate."""
+    from cc_daemon.config import load_settings
+
+    # Only the flag: no file, no environment (decode reads neither).
+    settings = load_settings(None, {"serial": {"baudrate": baudrate}}, env={}, search_paths=())
+    return settings.serial.baudrate
