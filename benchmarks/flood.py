@@ -81,6 +81,7 @@ class Flood:
     def __init__(self, fd: int) -> None:
         self.fd = fd
         self.stop = threading.Event()
+        self.written = threading.Event()  # the writer has sent its last frame
         self.asked: list[float] = []
         self.answered: list[float] = []
         self.frames_sent = 0
@@ -100,13 +101,14 @@ class Flood:
                 self.asked.append(time.perf_counter())
             self.frames_sent += CHUNK_FRAMES + 1
             self.bytes_sent += len(fixes) + len(request)
+        self.written.set()
 
     def read(self) -> None:
         buffer = b""
-        while not self.stop.is_set() or len(self.answered) < len(self.asked):
-            if not select.select([self.fd], [], [], 0.5)[0]:
-                if self.stop.is_set():
-                    return
+        while not self.written.is_set() or len(self.answered) < len(self.asked):
+            if not select.select([self.fd], [], [], 1.0)[0]:
+                if self.written.is_set():
+                    return  # nothing more is coming: a P-S went unanswered
                 continue
             buffer += os.read(self.fd, 4096)
             now = time.perf_counter()
