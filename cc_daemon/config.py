@@ -56,6 +56,7 @@ __all__ = [
     "LogSettings",
     "SerialSettings",
     "Settings",
+    "StatusSettings",
     "StoreSettings",
     "WinchSettings",
     "WinchSimSettings",
@@ -281,6 +282,18 @@ class LogSettings(BaseModel):
     ] = "info"
 
 
+class StatusSettings(BaseModel):
+    """[status]: the read-only status socket `cc-daemon status` and `doctor` ask."""
+
+    model_config = _SECTION
+
+    enabled: bool = True
+    # None: $RUNTIME_DIRECTORY/status.sock under systemd, else no socket.
+    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
+    max_clients: Annotated[int, Field(ge=1, le=1024)] = 32
+    client_timeout_s: Annotated[float, Field(ge=0.1, le=60.0)] = 2.0
+
+
 class Settings(BaseSettings):
     """The whole configuration, frozen. Build it with `load_settings` to read sources."""
 
@@ -291,6 +304,7 @@ class Settings(BaseSettings):
     cast: CastSettings = CastSettings()
     store: StoreSettings = StoreSettings()
     log: LogSettings = LogSettings()
+    status: StatusSettings = StatusSettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
     # What load_settings merged and where each value came from, so a check made

@@ -42,6 +42,10 @@ from tests.test_config import problems, write
             "store.telemetry_rate_hz = 1000 ({src}): must be at most 10",
         ),
         (
+            "[status]\nclient_timeout_s = 3600",
+            "status.client_timeout_s = 3600 ({src}): must be at most 60",
+        ),
+        (
             "[store]\ntelemetry_rate_hz = 0",
             "store.telemetry_rate_hz = 0 ({src}): must be at least 0.1",
         ),

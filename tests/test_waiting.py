@@ -95,6 +95,8 @@ async def test_the_daemon_counts_the_wait_and_says_it_in_the_systemd_status(
 ) -> None:
     from cc_daemon.config import Settings
     from cc_daemon.service import Daemon
+    from cc_daemon.status.report import source_of, status_document
+    from cc_daemon.status.view import render_text
     from cc_daemon.systemd import SystemdNotifier
 
     sock_path = tmp_path / "notify.sock"
@@ -117,6 +119,10 @@ async def test_the_daemon_counts_the_wait_and_says_it_in_the_systemd_status(
         try:
             await asyncio.sleep(1.2)
             assert daemon.snapshot().port_open_attempts >= 10
+            # ... and the status document (`cc-daemon status`) says so.
+            doc = status_document(source_of(daemon, time.monotonic(), time.time(), 0.0))
+            assert doc["link"]["up"] is False and doc["link"]["open_attempts"] >= 10
+            assert f"{doc['link']['open_attempts']} attempts to open it" in render_text(doc)
             statuses = []
             with contextlib.suppress(BlockingIOError):
                 while True:
