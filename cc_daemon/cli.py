@@ -4,9 +4,11 @@
     cc-daemon --simulate [...]               a whole survey against a simulated autopilot
     cc-daemon decode ...                     read frames: hex, a capture on stdin, a live port
     cc-daemon casts | export | plot          the survey journal
+    cc-daemon sonde export | plot            the sonde's readings and profiles
     cc-daemon simulate-autopilot --port P    the simulated autopilot alone, on a real port
     cc-daemon status [--json|--watch]        ask the running daemon what it is doing
     cc-daemon doctor                         check this Pi is ready to run the service
+    cc-daemon simulate-sonde --port PATH     the simulated sonde alone, on a pty at PATH
 
 Exit status: 0 success; 1 a tool found problems (corrupt frames, a failed
 survey); 2 bad usage or configuration (nothing was opened); 130 the daemon was
@@ -143,9 +145,10 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from cc_daemon import datacli
+    from cc_daemon import datacli, sondecli
     from cc_daemon.doctor import cli as doctor_cli
     from cc_daemon.sim import runner
+    from cc_daemon.sim import sondecli as simulate_sonde
     from cc_daemon.status import cli as status_cli
 
     parser = argparse.ArgumentParser(
@@ -167,6 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     runner.add_commands(sub)
     status_cli.add_commands(sub)
     doctor_cli.add_commands(sub)
+    sondecli.add_command(sub)
+    simulate_sonde.add_command(sub)
     return parser
 
 

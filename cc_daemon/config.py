@@ -45,6 +45,7 @@ from pydantic_settings import (
 )
 
 from cc_daemon.errors import ConfigError
+from cc_daemon.sonde.settings import SondeSettings
 
 __all__ = [
     "DEFAULT_SEARCH_PATHS",
@@ -237,6 +238,7 @@ class CastSettings(BaseModel):
     max_duration_s: Annotated[float, Field(ge=1.0, le=6 * _HOUR_S)] = 600.0
     rearm_s: Annotated[float, Field(ge=0, le=_HOUR_S)] = 120.0
     rearm_distance_m: _NonNegative = 10.0
+    depth_source: Literal["winch", "sonde"] = "winch"
 
     @model_validator(mode="after")
     def _check(self) -> CastSettings:
@@ -305,6 +307,7 @@ class Settings(BaseSettings):
     store: StoreSettings = StoreSettings()
     log: LogSettings = LogSettings()
     status: StatusSettings = StatusSettings()
+    sonde: SondeSettings = SondeSettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
     # What load_settings merged and where each value came from, so a check made
@@ -355,6 +358,12 @@ class Settings(BaseSettings):
                 "{0} must not be deeper than {1} (the probe cannot go below the line's end)",
                 "cast.target_depth_m",
                 "winch.max_line_m",
+            )
+        if self.cast.depth_source == "sonde" and self.sonde.backend == "none":
+            raise _impossible(
+                "{0} needs a sonde: set {1} (the R-M depth would come from nowhere)",
+                "cast.depth_source",
+                "sonde.backend",
             )
         return self
 
@@ -558,6 +567,9 @@ def _source(key: _Key, origins: Mapping[_Key, _Origin]) -> str:
 
 def _lookup(data: Any, key: _Key) -> Any:
     for part in key:
+        if isinstance(data, list | tuple) and part.isdigit() and int(part) < len(data):
+            data = data[int(part)]  # an array of tables: [[sonde.parameters]]
+            continue
         if not isinstance(data, Mapping) or part not in data:
             return _MISSING
         data = data[part]

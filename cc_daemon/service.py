@@ -57,6 +57,7 @@ from cc_daemon.protocol import (
     encode,
 )
 from cc_daemon.protocol.messages import CcMessage, DepthReport
+from cc_daemon.sonde.duty import SondeDuty, make_sonde
 from cc_daemon.store import Journal, default_store_path
 from cc_daemon.systemd import SystemdNotifier
 from cc_daemon.winch.base import Winch, WinchStatus
@@ -182,6 +183,7 @@ class Daemon:
         self._corrupt_reported = 0
         self._last_depth_m = 0.0
         self._output_loss_reported = False
+        self._sonde: SondeDuty | None = None
 
     # ------------------------------------------------------------ lifecycle
 
@@ -195,6 +197,10 @@ class Daemon:
             for cast_id in self._journal.open():
                 _log.warning("cast left unfinished by a previous run", cast_id=cast_id)
         self._journal.record_event("daemon_started", port=self.settings.serial.port)
+        self._sonde = make_sonde(
+            self.settings, clock=self._clock, journal=self._journal, view=self.snapshot,
+            on_bottom_contact=self.bottom_contact,
+        )  # fmt: skip
         _log.info(
             "cc-daemon started",
             port=self.settings.serial.port,
@@ -214,6 +220,9 @@ class Daemon:
                 status = tasks.create_task(
                     self._keep_running("status", self._serve_status), name="status"
                 )
+                sonde = self._sonde and tasks.create_task(
+                    self._keep_running("sonde", self._sonde.run), name="sonde"
+                )
                 # Serving from here on; the port may come later (a late USB adapter).
                 self._notifier.notify("READY=1", f"STATUS=opening {self.link.port}")
                 await self._shutdown.wait()
@@ -222,6 +231,8 @@ class Daemon:
                 link_task.cancel()
                 housekeeping.cancel()
                 status.cancel()
+                if sonde:
+                    sonde.cancel()
         finally:
             await self._close()
         return self._exit_code
@@ -640,7 +651,8 @@ class Daemon:
                     self._stop_motor(reason)
                 case ReportDepth(depth_m=depth, phase=phase):
                     cast.reports += 1
-                    self._send(DepthReport(self._time.at(now), self._depth_mm(depth)))
+                    told = self._sonde.report_depth(depth, now) if self._sonde else depth
+                    self._send(DepthReport(self._time.at(now), self._depth_mm(told)))
                     with self._journaling("record_sample") as journal:
                         if journal is not None:
                             journal.record_sample(cast.cast_id, depth, str(phase))
@@ -655,6 +667,12 @@ class Daemon:
                         stranded_for_s=round(now - cast.machine.started_at),
                     )
         return commanded
+
+    def bottom_contact(self, depth_m: float) -> None:
+        """The sonde says the probe is on the bottom: stop paying out, go on from there."""
+        cast = self._cast
+        if cast is not None:
+            self._execute(cast, cast.machine.bottom_contact(self._clock.monotonic(), depth_m))
 
     def _phase_changed(self, cast: _ActiveCast, old: Phase, new: Phase, reason: str | None) -> None:
         depth = round(cast.machine.depth_m, 3)

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO, cast
 
 from cc_daemon.protocol import Message
+from cc_daemon.sim import sondesummary
 from cc_daemon.sim.autopilot import (
     Autopilot,
     AutopilotConfig,
@@ -177,6 +178,8 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
         sim["fail_home"] = True
     base["cast"].update(pace.cast)
     base["store"]["path"] = str(options.db_path.absolute())
+    if base["sonde"]["backend"] == "none":  # a simulated survey measures with a simulated sonde
+        base["sonde"]["backend"] = "sim"
     return Settings.model_validate(base)
 
 
@@ -821,6 +824,7 @@ async def run_simulation(options: SimOptions) -> int:
         casts: list[JournalCast] | None = None
         try:
             casts = journal_casts(db_path, mission, run.wall0 - 1.0)
+            notes.extend(sondesummary.sonde_lines(db_path, run.wall0 - 1.0))
         except StoreError as exc:
             notes.append(f"could not read the journal: {exc}")
         summary = build_summary(

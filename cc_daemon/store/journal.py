@@ -29,6 +29,7 @@ from typing import Any
 
 from cc_daemon import __version__
 from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.store import sonde
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
 from cc_daemon.store.thinning import FixThinner
@@ -147,6 +148,7 @@ _SPILL_LAYOUT: dict[int, tuple[str, tuple[str, ...]]] = {
         ),
     ),
     _EVENT: ("events", ("mono_s", "wall_s", "clock_synced", "kind", "detail_json")),
+    sonde.SONDE: ("sonde_samples", sonde.COLUMNS),
 }
 
 
@@ -192,8 +194,9 @@ class Journal(BufferedWriter):
     methods are for the asyncio loop thread and return in microseconds.
     """
 
-    # When the buffer is full: after the fixes, events go, then samples; casts never.
-    shed_order = (_EVENT, _SAMPLE)
+    # When the buffer is full: after the fixes, events go, then samples, then the
+    # sonde's readings (what the boat stops for); casts never.
+    shed_order = (_EVENT, _SAMPLE, sonde.SONDE)
 
     def __init__(
         self,
@@ -373,6 +376,45 @@ class Journal(BufferedWriter):
                 "record_sample", "journal could not record a sample", error=repr(exc)
             )
 
+    def record_sonde_sample(
+        self,
+        *,
+        cast_id: int | None,
+        phase: str,
+        mono_s: float,
+        wall_s: float,
+        duration_s: float,
+        status: str,
+        error: str | None,
+        line_out_m: float | None,
+        sonde_depth_m: float | None,
+        values: dict[str, float | None],
+        missing: dict[str, str],
+        simulated: bool,
+    ) -> None:
+        """One sonde reading, stamped with the times its request went out (`store.sonde`)."""
+        try:
+            row = sonde.build_row(
+                cast_id=cast_id,
+                phase=phase,
+                mono_s=mono_s,
+                wall_s=wall_s,
+                clock_synced=self._clock_synced(mono_s),
+                duration_s=duration_s,
+                status=status,
+                error=error,
+                line_out_m=line_out_m,
+                sonde_depth_m=sonde_depth_m,
+                simulated=simulated,
+                values=values,
+                missing=missing,
+            )
+            self._append(row)
+        except Exception as exc:
+            self._errors.error(
+                "record_sonde_sample", "journal could not record a sonde reading", error=repr(exc)
+            )
+
     def end_cast(
         self,
         cast_id: int,
@@ -538,6 +580,9 @@ class Journal(BufferedWriter):
         elif kind == _EVENT:
             detail_json = self._event_detail(row, new_ids)
             conn.execute(_INSERT_EVENT, (self._session_id, *row[1:5], detail_json))
+        elif kind == sonde.SONDE:
+            cast_id = None if row[1] is None else self._stored_id(row[1], new_ids)
+            conn.execute(sonde.INSERT, (self._session_id, cast_id, *row[2:]))
         else:
             raise ValueError(f"unknown journal row kind {kind!r}")
 
@@ -570,7 +615,7 @@ class Journal(BufferedWriter):
             table, columns = _SPILL_LAYOUT[row[0]]
             record: dict[str, object] = {"table": table, "session_id": self._session_id}
             record.update(zip(columns, row[1:], strict=False))
-            if row[0] in (_SAMPLE, _END):
+            if row[0] in (_SAMPLE, _END) or (row[0] == sonde.SONDE and row[1] is not None):
                 record["cast_id"] = self._stored_id(row[1], {})
             elif row[0] == _EVENT:
                 record["detail_json"] = self._event_detail(row, {})

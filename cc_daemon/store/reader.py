@@ -29,7 +29,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from cc_daemon.store import schema
+from cc_daemon.store import schema, sonde
 from cc_daemon.store.schema import StoreError
 
 # SQLite's primary result codes for "may not write here" and "cannot open".
@@ -338,6 +338,12 @@ class JournalReader:
                 detail = {"unreadable_detail": r[5]}
             records.append(EventRecord(r[0], r[1], r[2], bool(r[3]), r[4], detail))
         return records
+
+    def sonde_samples(
+        self, *, cast_id: int | None = None, since: float | None = None
+    ) -> list[sonde.SondeSampleRecord]:
+        """The sonde's readings in time order (`store.sonde`)."""
+        return sonde.read_samples(self._conn, cast_id=cast_id, since=since)
 
     def _cast_end(self, cast: CastRecord) -> tuple[float, float]:
         """When a cast's data ends: its end row, else its last sample, else its start."""

@@ -22,6 +22,7 @@ from __future__ import annotations
 import sqlite3
 
 from cc_daemon.errors import CcDaemonError
+from cc_daemon.store import sonde
 
 # "ccdj" in ASCII: lets us refuse to migrate some other program's SQLite file.
 APPLICATION_ID = 0x6363646A
@@ -107,7 +108,8 @@ _V2: tuple[str, ...] = (
 )
 
 # MIGRATIONS[n] takes a file from version n to version n + 1.
-MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2)
+# Version 3: the sonde's readings (self-contained; see `store.sonde`).
+MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, sonde.MIGRATION)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
