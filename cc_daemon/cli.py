@@ -253,14 +253,27 @@ async def _serve(daemon: Any, reload: Callable[[], None] | None = None) -> int:
     return code
 
 
-def _simulate_only_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:
-    """The --simulate options given without --simulate (they would be ignored)."""
+def _simulate_only_options(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, argv: Sequence[str]
+) -> list[str]:
+    """The --simulate options given without --simulate (they would be ignored).
+
+    Looked for among the words before the command, if any: a command may have an
+    option of the same name (`simulate-sonde --seed`) that is its own.
+    """
+    words = list(argv)
+    if args.command is not None and args.command in words:
+        words = words[: words.index(args.command)]
     given: list[str] = []
     for group in parser._action_groups:
         if group.title != "--simulate options":
             continue
         for action in group._group_actions:
-            if getattr(args, action.dest, action.default) != action.default:
+            if any(
+                word == option or word.startswith(option + "=")
+                for option in action.option_strings
+                for word in words
+            ):
                 given.append(action.option_strings[0])
     return given
 
@@ -274,7 +287,8 @@ def _ignore_hangup() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    stray = [] if args.simulate else _simulate_only_options(parser, args)
+    words = sys.argv[1:] if argv is None else argv
+    stray = [] if args.simulate else _simulate_only_options(parser, args, words)
     if stray:
         print(f"cc-daemon: {', '.join(stray)} applies only with --simulate", file=sys.stderr)
         return EXIT_USAGE

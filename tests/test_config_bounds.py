@@ -41,6 +41,12 @@ from tests.test_config import problems, write
             "[store]\ntelemetry_rate_hz = 1000",
             "store.telemetry_rate_hz = 1000 ({src}): must be at most 10",
         ),
+        ("[sonde]\nperiod_s = 1e-4", "sonde.period_s = 0.0001 ({src}): must be at least 0.1"),
+        ("[sonde]\nstale_s = 86400", "sonde.stale_s = 86400 ({src}): must be at most 60"),
+        (
+            "[sonde]\nbottom_contact_s = 1e9",
+            "sonde.bottom_contact_s = 1000000000.0 ({src}): must be at most 600",
+        ),
         (
             "[status]\nclient_timeout_s = 3600",
             "status.client_timeout_s = 3600 ({src}): must be at most 60",
