@@ -214,8 +214,9 @@ def main() -> int:
         pty = PtyPair(directory / "ttyAP")
         os.set_blocking(pty.master_fd, True)
         started = time.monotonic()
-        # No depth reports during the latency run: only replies on the line.
-        proc = start_daemon(daemon_config(directory, pty.path, report_period_s=3600.0))
+        # No depth reports during the latency run (a few seconds, under the longest
+        # period allowed): only replies on the line.
+        proc = start_daemon(daemon_config(directory, pty.path, report_period_s=10.0))
         try:
             startup = wait_first_answer(pty.master_fd, started)
             drain(pty.master_fd)

@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import signal
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -51,33 +52,73 @@ def _add_decode(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.add_argument("--accept-g-alias", action="store_true", help="decode P-G as start measuring")
     p.add_argument("--port", help="decode a live serial line until Ctrl-C")
-    p.add_argument("--baudrate", type=int, default=9600, help="baud rate for --port (9600)")
+    p.add_argument("--baudrate", type=int, help="baud rate for --port (9600)")
+    p.add_argument(
+        "--shared",
+        action="store_true",
+        help="with --port: read even if another process has the port open (each byte goes "
+        "to one reader only: it steals that process's frames)",
+    )
     p.set_defaults(handler=_run_decode)
 
 
 def _run_decode(args: argparse.Namespace) -> int:
+    from cc_daemon.decode import (
+        HEX_SNIFF_BYTES,
+        checked_baudrate,
+        keeping_head,
+        looks_like_hex,
+        summary_line,
+        usage_problem,
+    )
     from cc_daemon.logsetup import configure_logging
+    from cc_daemon.protocol import Parser, Sender
 
     # Decoded lines own stdout (it may be piped into jq); diagnostics go to stderr.
     configure_logging("auto", "warning", sys.stderr)
+    problem = usage_problem(args)
+    if problem is not None:
+        print(f"cc-daemon decode: {problem}", file=sys.stderr)
+        return EXIT_USAGE
     try:
         if args.port:
             from cc_daemon.live_decode import decode_port
 
+            baudrate = checked_baudrate(args.baudrate)
             return decode_port(
-                args.port, args.baudrate, as_json=args.json, accept_g_alias=args.accept_g_alias
+                args.port,
+                baudrate,
+                as_json=args.json,
+                accept_g_alias=args.accept_g_alias,
+                shared=args.shared,
             )
         chunks: Iterable[bytes]
+        head = bytearray()
         if args.hex:
             chunks = [parse_hex(" ".join(args.hex))]
         else:
-            chunks = read_stdin_chunks(sys.stdin.buffer, hex_text=args.hex_stdin)
-        return print_events(
-            decode_chunks(chunks, accept_g_alias=args.accept_g_alias), as_json=args.json
-        )
+            raw = read_stdin_chunks(sys.stdin.buffer, hex_text=args.hex_stdin)
+            chunks = raw if args.hex_stdin else keeping_head(raw, head, HEX_SNIFF_BYTES)
+        parser = Parser(Sender.BOTH, accept_g_alias=args.accept_g_alias)
+        status = print_events(decode_chunks(chunks, parser=parser), as_json=args.json)
+        stats = parser.stats
+        print(summary_line(stats), file=sys.stderr)
+        if stats.frames_decoded == 0 and not stats.errors and looks_like_hex(bytes(head)):
+            print(
+                f"cc-daemon decode: 0 frames in {stats.bytes_received} bytes; "
+                "this looks like hex text: use --hex",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
+        return status
     except HexInputError as exc:
         print(f"cc-daemon decode: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:
+        # The reader of our stdout left (`| head -1`): not an error. Point stdout
+        # at /dev/null so the interpreter's final flush does not complain.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 def _add_daemon_options(parser: argparse.ArgumentParser) -> None:
@@ -152,20 +193,38 @@ def _load(args: argparse.Namespace) -> Any:
     return load_settings(args.config, flag_overrides(args))
 
 
-def _run_daemon(args: argparse.Namespace) -> int:
-    from cc_daemon.logsetup import configure_logging, resolve_format
-    from cc_daemon.service import Daemon
-    from cc_daemon.simgate import check_backend_allowed
+def _configure_daemon_logging(settings: Any) -> None:
+    from cc_daemon.logsetup import configure_logging, flush_rate_limited, resolve_format
 
-    settings = _load(args)
+    flush_rate_limited(everything=True)  # a reconfiguration must not lose held-back counts
     # "auto" follows stdout: a terminal gets the console renderer, journald
     # (or a pipe, or a file) gets JSON lines. The log itself goes to stderr.
     configure_logging(resolve_format(settings.log.format, sys.stdout), settings.log.level)
+
+
+def _run_daemon(args: argparse.Namespace) -> int:
+    from cc_daemon.preflight import check_paths, open_journal
+    from cc_daemon.reload import Reloader
+    from cc_daemon.service import Daemon
+    from cc_daemon.simgate import check_backend_allowed
+
+    # From the first moment: the SSH session that started us closing must not
+    # kill us (and a reload sent before the loop runs is simply not needed).
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    settings = _load(args)
+    check_paths(settings)  # a port or journal path that can never work: exit 2 now
     check_backend_allowed(settings)  # a simulated winch not asked for: exit 2, nothing opened
-    return asyncio.run(_serve(Daemon(settings)))
+    _configure_daemon_logging(settings)
+    daemon = Daemon(settings, journal=open_journal(settings))
+    reloader = Reloader(daemon, lambda: _load(args), _configure_daemon_logging)
+    try:
+        return asyncio.run(_serve(daemon, reloader))
+    finally:
+        # Closing the loop gave SIGHUP its default (fatal) action back.
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
 
 
-async def _serve(daemon: Any) -> int:
+async def _serve(daemon: Any, reload: Callable[[], None] | None = None) -> int:
     import structlog
 
     log = structlog.get_logger("cc_daemon.cli")
@@ -187,13 +246,52 @@ async def _serve(daemon: Any) -> int:
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, on_signal, signum)
+    # SIGHUP (systemctl reload, or the terminal that started us closing) re-reads
+    # the configuration; it never stops the daemon nor interrupts a cast.
+    loop.add_signal_handler(signal.SIGHUP, reload or _ignore_hangup)
     code: int = await daemon.run()
     return code
+
+
+def _simulate_only_options(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, argv: Sequence[str]
+) -> list[str]:
+    """The --simulate options given without --simulate (they would be ignored).
+
+    Looked for among the words before the command, if any: a command may have an
+    option of the same name (`simulate-sonde --seed`) that is its own.
+    """
+    words = list(argv)
+    if args.command is not None and args.command in words:
+        words = words[: words.index(args.command)]
+    given: list[str] = []
+    for group in parser._action_groups:
+        if group.title != "--simulate options":
+            continue
+        for action in group._group_actions:
+            if any(
+                word == option or word.startswith(option + "=")
+                for option in action.option_strings
+                for word in words
+            ):
+                given.append(action.option_strings[0])
+    return given
+
+
+def _ignore_hangup() -> None:
+    import structlog
+
+    structlog.get_logger("cc_daemon.cli").info("SIGHUP ignored: nothing to reload")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else argv
+    stray = [] if args.simulate else _simulate_only_options(parser, args, words)
+    if stray:
+        print(f"cc-daemon: {', '.join(stray)} applies only with --simulate", file=sys.stderr)
+        return EXIT_USAGE
     try:
         handler = getattr(args, "handler", None)
         if handler is not None:

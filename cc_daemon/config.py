@@ -150,6 +150,18 @@ def _empty_is_none(value: Any) -> Any:
 _SECTION = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 _Positive = Annotated[float, Field(gt=0)]
 _NonNegative = Annotated[float, Field(ge=0)]
+# Every period and duration has a floor and a ceiling a real boat could want; the
+# reasons are in config/cc-daemon.toml. A value that validates must also work: a
+# microsecond report period would saturate the line and a core.
+_HOUR_S = 3600.0
+_Dwell = Annotated[float, Field(ge=0, le=_HOUR_S)]
+
+
+def _no_nul(value: Any) -> Any:
+    if isinstance(value, str | os.PathLike) and "\0" in os.fspath(value):
+        raise _not_allowed("must not contain a NUL character")
+    return value
+
 
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
 # docs/configuration.md; tests keep both in step with these models.
@@ -160,16 +172,16 @@ class SerialSettings(BaseModel):
 
     model_config = _SECTION
 
-    port: Annotated[str, Field(min_length=1)] = "/dev/serial0"
+    port: Annotated[str, Field(min_length=1), AfterValidator(_no_nul)] = "/dev/serial0"
     baudrate: Annotated[int, AfterValidator(_check_baudrate)] = 9600
     bytesize: Annotated[int, Field(ge=5, le=8)] = 8
     parity: Annotated[Literal["N", "E", "O", "M", "S"], BeforeValidator(_upper)] = "N"
     stopbits: Annotated[float, AfterValidator(_check_stopbits)] = 1
     accept_g_alias: bool = False
-    reconnect_initial_s: _Positive = 0.2
-    reconnect_max_s: _Positive = 5.0
+    reconnect_initial_s: Annotated[float, Field(ge=0.05, le=60.0)] = 0.2
+    reconnect_max_s: Annotated[float, Field(ge=0.05, le=600.0)] = 5.0
     timestamp_order: Literal["auto", "big", "little"] = "auto"
-    jog_hold_s: _Positive = 2.5
+    jog_hold_s: Annotated[float, Field(ge=1.5, le=10.0)] = 2.5
 
     @model_validator(mode="after")
     def _check(self) -> SerialSettings:
@@ -334,17 +346,17 @@ class CastSettings(BaseModel):
     bottom_clearance_m: _NonNegative = 0.5
     min_depth_m: _NonNegative = 0.3
     mode: Literal["continuous", "stepped"] = "continuous"
-    bottom_dwell_s: _NonNegative = 10.0
+    bottom_dwell_s: _Dwell = 10.0
     step_m: _Positive = 1.0
-    dwell_s: _NonNegative = 5.0
-    soak_s: _NonNegative = 0.0
+    dwell_s: _Dwell = 5.0
+    soak_s: _Dwell = 0.0
     soak_depth_m: _NonNegative = 0.5
-    report_period_s: _Positive = 1.0
-    max_duration_s: _Positive = 600.0
-    rearm_s: _NonNegative = 120.0
+    report_period_s: Annotated[float, Field(ge=0.2, le=10.0)] = 1.0
+    max_duration_s: Annotated[float, Field(ge=1.0, le=6 * _HOUR_S)] = 600.0
+    rearm_s: Annotated[float, Field(ge=0, le=_HOUR_S)] = 120.0
     rearm_distance_m: _NonNegative = 10.0
     depth_source: Literal["winch", "sonde"] = "winch"
-    rf_repeat_after_s: _Positive = 2.5
+    rf_repeat_after_s: Annotated[float, Field(ge=0.5, le=60.0)] = 2.5
     rf_repeats: Annotated[int, Field(ge=0, le=100)] = 3
 
     @model_validator(mode="after")
@@ -370,8 +382,14 @@ class StoreSettings(BaseModel):
 
     model_config = _SECTION
 
-    # None lets the journal choose its default location.
-    path: Annotated[Path | None, BeforeValidator(_empty_is_none)] = None
+    # None lets the journal choose its default location. Where the file may be
+    # (not a directory, a device, /proc...) is checked at start, not here: that
+    # needs the filesystem (see cc_daemon/preflight.py).
+    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
+    # Telemetry fixes written to the journal per second at most: the latest of
+    # each interval is kept, the rest counted. Bounds the disk a babbling
+    # autopilot can fill, and the memory the unwritten rows can take.
+    telemetry_rate_hz: Annotated[float, Field(ge=0.1, le=10.0)] = 2.0
 
 
 class LogSettings(BaseModel):
@@ -392,9 +410,9 @@ class StatusSettings(BaseModel):
 
     enabled: bool = True
     # None: $RUNTIME_DIRECTORY/status.sock under systemd, else no socket.
-    path: Annotated[Path | None, BeforeValidator(_empty_is_none)] = None
+    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
     max_clients: Annotated[int, Field(ge=1, le=1024)] = 32
-    client_timeout_s: _Positive = 2.0
+    client_timeout_s: Annotated[float, Field(ge=0.1, le=60.0)] = 2.0
 
 
 class SonarSettings(BaseModel):
@@ -436,6 +454,10 @@ class Settings(BaseSettings):
     sonar: SonarSettings = SonarSettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
+    # What load_settings merged and where each value came from, so a check made
+    # later (the start-up checks of paths) can name a key as these errors do.
+    _merged: dict[str, Any] = PrivateAttr(default_factory=dict)
+    _origins: dict[_Key, _Origin] = PrivateAttr(default_factory=dict)
 
     @property
     def source_file(self) -> Path | None:
@@ -445,6 +467,17 @@ class Settings(BaseSettings):
         whether two Settings read from different files hold the same values.
         """
         return self._source_file
+
+    def describe(self, dotted_key: str) -> str:
+        """`key = value (from source)`, as a configuration error names a key."""
+        key = tuple(dotted_key.split("."))
+        if _lookup(self._merged, key) is _MISSING:
+            node: Any = self
+            for part in key:
+                node = getattr(node, part)
+            where = "default" if node == _default(key) else "given"
+            return f"{dotted_key} = {_render(node)} ({where})"
+        return _key_value_source(key, self._merged, self._origins)
 
     @classmethod
     def settings_customise_sources(
@@ -528,6 +561,7 @@ def load_settings(
         lines = [_describe(error, merged, origins) for error in exc.errors()]
         raise ConfigError("\n".join(_PREFIX + line for line in lines)) from None
     settings._source_file = source_file
+    settings._merged, settings._origins = merged, origins
     return settings
 
 

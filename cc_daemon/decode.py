@@ -2,21 +2,43 @@
 
 Input is hex on the command line, a byte stream on stdin (raw bytes, or hex
 text with `--hex`), or a live serial line (`--port`). Output is one line per
-frame or per error, plain or JSON. The exit status says whether any corrupt
-frame was found: 0 clean, 1 errors found.
+frame or per error, plain or JSON, then a summary line on stderr (`# N frames,
+M errors (...), K bytes skipped`, the same for every input). The exit status
+says whether any corrupt frame was found: 0 clean, 1 errors found; raw input
+that decodes to nothing and looks like hex text is a usage error (2), pointing
+at `--hex`.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import re
 import sys
 from collections.abc import Iterable, Iterator
 from typing import IO, Any
 
-from cc_daemon.protocol import CorruptFrame, Message, Parser, Sender, as_dict
+from cc_daemon.protocol import CorruptFrame, Message, Parser, ParserStats, Sender, as_dict
 
 _SEPARATORS = re.compile(r"[\s,:;]+")
+# Hex text as people paste it: digits, blanks, separators, 0x prefixes.
+_HEX_TEXT = re.compile(rb"[\s,:;]*(?:(?:0[xX])?[0-9a-fA-F]+[\s,:;]*)+")
+HEX_SNIFF_BYTES = 4096  # how much of a raw stream is kept to tell hex text
+
+
+def looks_like_hex(head: bytes) -> bool:
+    """Whether raw input is in fact hex text (`50 53 00 48 00 EB`), from its first bytes."""
+    return _HEX_TEXT.fullmatch(head) is not None and any(c in b"0123456789" for c in head)
+
+
+def summary_line(stats: ParserStats) -> str:
+    """`# N frames, M errors (...), K bytes skipped`: the last line of every decode."""
+    return (
+        f"# {stats.frames_decoded} frames, {stats.errors} errors "
+        f"({stats.bad_checksum} bad checksum, {stats.unknown_type} unknown type, "
+        f"{stats.bad_field} bad field, {stats.truncated} truncated), "
+        f"{stats.bytes_discarded} bytes skipped"
+    )
 
 
 class HexInputError(ValueError):
@@ -58,10 +80,14 @@ def format_event(event: Message | CorruptFrame, *, as_json: bool) -> str:
 
 
 def decode_chunks(
-    chunks: Iterable[bytes], *, accept_g_alias: bool = False
+    chunks: Iterable[bytes], *, accept_g_alias: bool = False, parser: Parser | None = None
 ) -> Iterator[Message | CorruptFrame]:
-    """Every frame and error in a stream, in order, ending with any truncated frame."""
-    parser = Parser(Sender.BOTH, accept_g_alias=accept_g_alias)
+    """Every frame and error in a stream, in order, ending with any truncated frame.
+
+    Pass a `parser` (listening to both senders) to read its statistics afterwards.
+    """
+    if parser is None:
+        parser = Parser(Sender.BOTH, accept_g_alias=accept_g_alias)
     for chunk in chunks:
         yield from parser.events(chunk)
     yield from parser.close()
@@ -90,3 +116,36 @@ def print_events(
             status = 1
         print(format_event(event, as_json=as_json), file=out, flush=True)
     return status
+
+
+def usage_problem(args: argparse.Namespace) -> str | None:
+    """Options that do not apply together are refused, not ignored."""
+    if args.port:
+        if args.hex:
+            return "hex arguments and --port do not go together: decode one or the other"
+        if args.hex_stdin:
+            return "--hex reads stdin; with --port the bytes come from the port"
+        return None
+    for option, given in (("--baudrate", args.baudrate is not None), ("--shared", args.shared)):
+        if given:
+            return f"{option} applies only with --port"
+    if args.hex and args.hex_stdin:
+        return "--hex reads hex text from stdin; hex arguments are decoded as they are"
+    return None
+
+
+def keeping_head(chunks: Iterable[bytes], head: bytearray, size: int) -> Iterator[bytes]:
+    """The chunks unchanged, keeping a copy of the first `size` bytes in `head`."""
+    for chunk in chunks:
+        if len(head) < size:
+            head += chunk[: size - len(head)]
+        yield chunk
+
+
+def checked_baudrate(baudrate: int | None) -> int:
+    """--baudrate for decode, validated exactly as the daemon's serial.baudrate."""
+    from cc_daemon.config import load_settings
+
+    # Only the flag: no file, no environment (decode reads neither).
+    settings = load_settings(None, {"serial": {"baudrate": baudrate}}, env={}, search_paths=())
+    return settings.serial.baudrate

@@ -5,7 +5,9 @@ caller's parser) and writes whole frames with a single `write` call each, so
 frames never interleave. When the port fails or disappears (USB adapter
 unplugged, EIO, device node gone) it says so through `on_state`, and reopens
 the same path with capped, jittered exponential backoff for as long as it
-takes. Nothing written while the link is down is queued: `write` returns
+takes; while it cannot, it says so again at a slowing interval ("still waiting
+for /dev/ttyUSB7: 14 attempts since 10:02:11", see `waiting.py`) in the log and
+through `on_waiting`. Nothing written while the link is down is queued: `write` returns
 False and the frame is dropped (a depth report from a second ago is no use).
 
 It never parses, never decides anything about casts, and never lets a
@@ -18,11 +20,14 @@ import asyncio
 import contextlib
 import functools
 import random
+import time
 from collections.abc import Callable
 from typing import Any
 
 import serial_asyncio
 import structlog
+
+from cc_daemon.waiting import WaitReport
 
 _log = structlog.get_logger("cc_daemon.link")
 
@@ -62,10 +67,14 @@ class SerialLink:
         reconnect_initial_s: float = 0.2,
         reconnect_max_s: float = 5.0,
         jitter: Callable[[], float] = random.random,
+        on_waiting: Callable[[str], None] | None = None,
+        wait_report: WaitReport | None = None,
     ) -> None:
         self.port = port
         self.on_data = on_data
         self.on_state = on_state
+        self.on_waiting = on_waiting
+        self.waiting = wait_report or WaitReport()
         self._serial_kwargs: dict[str, Any] = {
             "baudrate": baudrate,
             "bytesize": bytesize,
@@ -119,13 +128,17 @@ class SerialLink:
                 # termios on a failing adapter, termios.error: none may end the link.
                 failures += 1
                 error = f"{type(exc).__name__}: {exc}"
+                due = self.waiting.failed(loop.time(), time.time())
                 if error != last_error:  # say each new reason once; the retries are expected
                     _log.warning("cannot open serial port", port=self.port, error=error)
                     last_error = error
+                elif due:  # and say again, ever less often, that we are still at it
+                    self._say_waiting(error)
                 await asyncio.sleep(self.backoff_delay(failures))
                 continue
             self._transport = transport
             self.opens += 1
+            self.waiting.reset()
             opened_at = loop.time()
             last_error = ""
             _log.info("serial port open", port=self.port, **self._serial_kwargs)
@@ -148,6 +161,16 @@ class SerialLink:
             stable = loop.time() - opened_at >= self.reconnect_max_s
             failures = 1 if stable else failures + 1
             await asyncio.sleep(self.backoff_delay(failures))
+
+    def _say_waiting(self, error: str) -> None:
+        text = self.waiting.message(self.port)
+        _log.warning(text, port=self.port, attempts=self.waiting.attempts, error=error)
+        if self.on_waiting is None:
+            return
+        try:
+            self.on_waiting(text)
+        except Exception:
+            _log.exception("error handling a still-waiting report")
 
     def _notify(self, up: bool, reason: str) -> None:
         if self.on_state is None:

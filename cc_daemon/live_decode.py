@@ -3,7 +3,10 @@
 For an engineer on a sniffer cable or a spare UART: the same `SerialLink` the
 daemon uses (so an unplugged adapter is reopened the same way), a parser that
 listens to both directions, and one printed line per frame or error. The port
-is opened non-exclusively so it can sit beside another reader.
+is opened non-exclusively so it can sit beside another reader, but only when
+asked (`shared`): a UART gives each byte to one reader only, so reading the
+daemon's own port would steal the autopilot's frames from it. Sniffing needs a
+second UART wired to the line (two to see both directions).
 """
 
 from __future__ import annotations
@@ -13,9 +16,12 @@ import contextlib
 import signal
 import sys
 
-from cc_daemon.decode import format_event
+from cc_daemon.decode import format_event, summary_line
 from cc_daemon.link import SerialLink
+from cc_daemon.portusers import port_users
 from cc_daemon.protocol import Parser, Sender
+
+EXIT_USAGE = 2
 
 
 async def _decode(port: str, baudrate: int, *, as_json: bool, accept_g_alias: bool) -> int:
@@ -42,14 +48,23 @@ async def _decode(port: str, baudrate: int, *, as_json: bool, accept_g_alias: bo
         with contextlib.suppress(asyncio.CancelledError):
             await task
     stats = parser.stats
-    print(
-        f"# {stats.frames_decoded} frames, {stats.errors} errors "
-        f"({stats.bad_checksum} bad checksum, {stats.unknown_type} unknown type, "
-        f"{stats.bad_field} bad field), {stats.bytes_discarded} bytes discarded",
-        file=sys.stderr,
-    )
+    print(summary_line(stats), file=sys.stderr)
     return 1 if stats.errors else 0
 
 
-def decode_port(port: str, baudrate: int, *, as_json: bool, accept_g_alias: bool) -> int:
+def decode_port(
+    port: str, baudrate: int, *, as_json: bool, accept_g_alias: bool, shared: bool = False
+) -> int:
+    if not shared:
+        users = port_users(port)
+        if users:
+            named = ", ".join(str(user) for user in users)
+            print(
+                f"cc-daemon decode: {port} is open in another process: {named}. Reading it "
+                "too would take bytes from it (each byte goes to one reader only). To "
+                "sniff a line, wire a second UART to it (two to see both directions); "
+                "--shared reads anyway.",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
     return asyncio.run(_decode(port, baudrate, as_json=as_json, accept_g_alias=accept_g_alias))

@@ -10,6 +10,11 @@ is given, or drop an event without counting it: repeats are held back, counted a
 reported with ``repeated=N`` (by the next identical event after the window, or by
 `flush_rate_limited`), never silenced.
 
+Nor may logging ever raise into its caller: a stream that fails for good (the
+terminal of a closed SSH session: EIO; a pipe whose reader left: EPIPE; a closed
+file) is pointed at /dev/null, and the lines lost from then on are counted in
+`output_loss()`, which the daemon reports through the journal and systemd instead.
+
 Callers log with ``structlog.get_logger(__name__)``; the name becomes the "logger"
 field.
 """
@@ -17,6 +22,7 @@ field.
 from __future__ import annotations
 
 import logging
+import os
 import sys
 import threading
 import time
@@ -29,9 +35,11 @@ from structlog.typing import EventDict, Processor, WrappedLogger
 
 __all__ = [
     "LEVELS",
+    "OutputLoss",
     "RateLimiter",
     "configure_logging",
     "flush_rate_limited",
+    "output_loss",
     "reset_logging",
     "resolve_format",
 ]
@@ -178,12 +186,70 @@ def _identity(event_dict: EventDict) -> Hashable:
 # --- configuration ----------------------------------------------------------------------
 
 
+@dataclass(frozen=True, slots=True)
+class OutputLoss:
+    """The log stream failed: why, and how many lines have been lost since."""
+
+    error: str
+    lines: int
+
+
+@dataclass(slots=True)
+class _Loss:
+    stream: TextIO | None = None
+    error: str = ""
+    lines: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+_loss = _Loss()
+
+
+def output_loss() -> OutputLoss | None:
+    """Whether the log stream failed (and was replaced by /dev/null), and what was lost."""
+    with _loss.lock:
+        if _loss.stream is None:
+            return None
+        return OutputLoss(_loss.error, _loss.lines)
+
+
+def _stream_failed(stream: TextIO, exc: BaseException) -> None:
+    """Point the failed stream at /dev/null so nothing writing to it, not even the
+    interpreter's last flush at exit, fails again; count the line."""
+    with _loss.lock:
+        if _loss.stream is None:
+            _loss.stream, _loss.error = stream, f"{type(exc).__name__}: {exc}"
+            try:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                try:
+                    os.dup2(devnull, stream.fileno())
+                finally:
+                    os.close(devnull)
+            except (OSError, ValueError, AttributeError):
+                pass  # a stream with no file descriptor: we simply stop writing to it
+        _loss.lines += 1
+
+
 class _NamedWriteLogger(structlog.WriteLogger):
-    """A WriteLogger that knows the name it was asked for, for the "logger" field."""
+    """A WriteLogger that knows the name it was asked for, for the "logger" field,
+    and never raises (see the module docstring)."""
 
     def __init__(self, file: TextIO, name: str) -> None:
         super().__init__(file)
         self.name = name
+
+    def msg(self, message: str) -> None:
+        if _loss.stream is self._file:
+            with _loss.lock:
+                _loss.lines += 1
+            return
+        try:
+            super().msg(message)
+        except (OSError, ValueError) as exc:  # ValueError: writing to a closed file
+            _stream_failed(self._file, exc)
+
+    log = debug = info = warn = warning = msg
+    fatal = failure = err = error = critical = exception = msg
 
 
 def _add_logger_name(logger: WrappedLogger, method_name: str, event_dict: EventDict) -> EventDict:
@@ -194,13 +260,16 @@ def _add_logger_name(logger: WrappedLogger, method_name: str, event_dict: EventD
 class _StdlibToStructlog(logging.Handler):
     """Feeds `logging` records (pyserial, asyncio...) into the structlog chain.
 
-    One chain for both means one format, one level and one rate limiter.
+    One chain for both means one format, one level and one rate limiter. A record
+    logged with ``extra={"fields": {...}}`` (as our own library code does, e.g. the
+    parser) keeps those fields as structured fields.
     """
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
             message = record.getMessage()
-            fields: dict[str, Any] = {}
+            extra = getattr(record, "fields", None)
+            fields: dict[str, Any] = dict(extra) if isinstance(extra, dict) else {}
             if record.exc_info:
                 fields["exc_info"] = record.exc_info
             # structlog knows only the five standard levels; a custom one (asyncio's
@@ -309,6 +378,9 @@ def reset_logging() -> None:
     with _installed.lock:
         if _installed.handler is not None:
             logging.getLogger().removeHandler(_installed.handler)
+            logging.getLogger().setLevel(logging.WARNING)  # the standard library's default
         _installed.handler = None
         _installed.limiter = None
         structlog.reset_defaults()
+    with _loss.lock:
+        _loss.stream, _loss.error, _loss.lines = None, "", 0

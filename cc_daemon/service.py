@@ -43,7 +43,8 @@ from cc_daemon.clock import Clock, SystemClock
 from cc_daemon.config import Settings
 from cc_daemon.line_watch import TICK_S, LineWatch
 from cc_daemon.link import SerialLink
-from cc_daemon.logsetup import flush_rate_limited
+from cc_daemon.logsetup import flush_rate_limited, output_loss
+from cc_daemon.preflight import make_journal
 from cc_daemon.protocol import (
     Ack,
     CorruptFrame,
@@ -61,10 +62,10 @@ from cc_daemon.protocol import (
     encode,
 )
 from cc_daemon.protocol.messages import CcMessage, DepthReport
-from cc_daemon.simgate import backend_name, is_simulated, simulation_warning
+from cc_daemon.simgate import simulation_warning
 from cc_daemon.sonar.onboard import OnboardSonar
 from cc_daemon.sonde.duty import SondeDuty, make_sonde
-from cc_daemon.store import Journal, default_store_path
+from cc_daemon.store import Journal
 from cc_daemon.systemd import SystemdNotifier
 from cc_daemon.winch.base import Winch, WinchStatus
 from cc_daemon.winch.factory import make_winch, prepare_winch
@@ -107,6 +108,7 @@ class DaemonStatus:
     stopping: bool = False
     jog: str | None = None  # "up" / "down" while the RC stick jogs the probe
     lost_start: str | None = None  # set while the autopilot may wait on an unread M
+    port_open_attempts: int = 0  # failed attempts to open the port since it was last open
 
 
 class _ActiveCast:
@@ -172,6 +174,7 @@ class Daemon:
             stopbits=serial_settings.stopbits,
             reconnect_initial_s=serial_settings.reconnect_initial_s,
             reconnect_max_s=serial_settings.reconnect_max_s,
+            on_waiting=lambda text: self._notifier.notify(f"STATUS={text}"),
         )
         self.sonar = OnboardSonar.from_settings(settings.sonar, self._clock, lambda: self._journal)
         self._cast: _ActiveCast | None = None
@@ -185,6 +188,7 @@ class Daemon:
         self.port_losses = 0
         self._corrupt_reported = 0
         self._last_depth_m = 0.0
+        self._output_loss_reported = False
         self._sonde: SondeDuty | None = None
 
     # ------------------------------------------------------------ lifecycle
@@ -196,12 +200,7 @@ class Daemon:
         if self._winch is None:
             self._winch = make_winch(self.settings, self._clock, record=self._journal_event)
         if self._journal is None:
-            path = self.settings.store.path or default_store_path()
-            self._journal = Journal(
-                path,
-                winch_backend=backend_name(self.settings),
-                simulated=is_simulated(self.settings),
-            )
+            self._journal = make_journal(self.settings)
             for cast_id in self._journal.open():
                 _log.warning("cast left unfinished by a previous run", cast_id=cast_id)
         self._journal.record_event("daemon_started", port=self.settings.serial.port)
@@ -281,6 +280,28 @@ class Daemon:
         self._line.stop_jog(self._clock.monotonic(), "shutdown")
         self._shutting_down = True
         self._shutdown.set()
+
+    @property
+    def shutting_down(self) -> bool:
+        return self._shutting_down
+
+    def reload(self, settings: Settings, applied: tuple[str, ...] = ()) -> None:
+        """Run with `settings` from now on; only live keys may differ (`cc_daemon.reload`).
+
+        The next cast plans with them; a running cast keeps what it started with.
+        """
+        self.settings = settings
+        self._stations.rearm_s = settings.cast.rearm_s
+        self._stations.rearm_distance_m = settings.cast.rearm_distance_m
+        with self._journaling("set_telemetry_rate") as journal:
+            if journal is not None:
+                journal.set_telemetry_rate(settings.store.telemetry_rate_hz)
+        if applied:
+            self._journal_event("config_reloaded", applied=list(applied))
+
+    def record_event(self, kind: str, **detail: Any) -> None:
+        """A journal event from outside the hub (a reload refused, say); never raises."""
+        self._journal_event(kind, **detail)
 
     async def _finish_running_cast(self) -> None:
         """Bring a running cast home; give up only on a probe that cannot come home."""
@@ -369,6 +390,7 @@ class Daemon:
             await asyncio.sleep(HOUSEKEEPING_TICK_S)
             flush_rate_limited()
             self._notifier.watchdog()  # every second: fine for any WatchdogSec >= 2
+            self._report_output_loss()
             tick += 1
             if tick % CORRUPT_SUMMARY_EVERY:
                 continue
@@ -384,6 +406,15 @@ class Daemon:
         while True:
             await self._clock.sleep_until(self._clock.monotonic() + TICK_S)
             self._line.tick(self._clock.monotonic(), cast_running=self._cast is not None)
+
+    def _report_output_loss(self) -> None:
+        """A log stream gone for good (a closed terminal): say so where it can be seen."""
+        loss = output_loss()
+        if loss is None or self._output_loss_reported:
+            return
+        self._output_loss_reported = True
+        self._journal_event("log_output_lost", error=loss.error)
+        self._notifier.notify(f"STATUS=log output lost ({loss.error}); events go to the journal")
 
     # ------------------------------------------------------------ status
 
@@ -408,6 +439,7 @@ class Daemon:
             stopping=self._shutting_down,
             jog=str(self._line.jog.stick) if self._line.jog.stick else None,
             lost_start=self._line.lost_start_text(),
+            port_open_attempts=self.link.waiting.attempts,
         )
 
     @property

@@ -51,7 +51,10 @@ def test_too_shallow_station_is_skipped_with_a_reason(sonar_mm: int) -> None:
     plan = plan_cast(station(sonar_mm=sonar_mm), s.cast, s.winch.max_line_m)
     assert isinstance(plan, SkipCast)
     assert "min_depth_m" in plan.reason
-    assert plan.planned_depth_m < 0.3
+    assert 0.0 <= plan.planned_depth_m < 0.3
+    # The reason and the stored planned depth say the same thing.
+    assert f"planned depth {plan.planned_depth_m:.2f} m " in plan.reason
+    assert "-0." not in plan.reason
 
 
 def test_just_deep_enough_is_cast() -> None:

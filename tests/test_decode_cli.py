@@ -230,7 +230,8 @@ def test_raw_stdin_ending_mid_frame_reports_truncated(capsys: pytest.CaptureFixt
 
 
 def test_empty_stdin_is_clean(capsys: pytest.CaptureFixture[str]) -> None:
-    assert run([], capsys, stdin=b"") == (0, [], "")
+    summary = "# 0 frames, 0 errors (0 bad checksum, 0 unknown type, 0 bad field, 0 truncated)"
+    assert run([], capsys, stdin=b"") == (0, [], f"{summary}, 0 bytes skipped\n")
 
 
 # ---------------------------------------------------------------- the real command

@@ -216,12 +216,15 @@ def test_close_saves_and_reports_rows_a_dead_writer_left(tmp_path: Path) -> None
     assert lines[3]["ap_timestamp_s"] == FIX.timestamp_s
 
 
-def test_rows_go_to_the_temporary_directory_if_not_beside_the_journal(
+def test_rows_go_to_the_state_directory_if_not_beside_the_journal_never_to_tmp(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     temp = tmp_path / "tmp"
     temp.mkdir()
+    state = tmp_path / "state"
+    state.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    monkeypatch.setenv("STATE_DIRECTORY", str(state))
     db = tmp_path / "gone" / "j.db"  # the directory is missing: nothing can be written there
     journal = Journal(db)
     with capture_logs() as logs:
@@ -229,13 +232,48 @@ def test_rows_go_to_the_temporary_directory_if_not_beside_the_journal(
         for i in range(3):
             journal.record_fix(FIX._replace(timestamp_s=i))
         journal.close()
-    (spill,) = temp.glob("j-unwritten-*.jsonl")
+    (spill,) = state.glob("j-unwritten-*.jsonl")
     assert [json.loads(line)["ap_timestamp_s"] for line in spill.read_text().splitlines()] == [
         0,
         1,
         2,
     ]
     assert any(e.get("spill_file") == str(spill) and e["rows"] == 3 for e in logs)
+    # The temporary directory is wiped with the service (PrivateTmp): never used for this.
+    assert list(temp.iterdir()) == []
+
+
+def test_with_nowhere_safe_the_rows_are_reported_lost_not_written_elsewhere(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    monkeypatch.delenv("STATE_DIRECTORY", raising=False)
+    journal = Journal(tmp_path / "gone" / "j.db")
+    with capture_logs() as logs:
+        journal.open()
+        journal.record_fix(FIX)
+        journal.close()
+    assert list(temp.iterdir()) == []
+    assert any(
+        e["event"] == "journal closed with rows it could not write; they are lost" for e in logs
+    )
+
+
+def test_spill_and_fresh_files_never_go_under_dev_proc_or_sys(tmp_path: Path) -> None:
+    from cc_daemon.store.failures import data_directories
+
+    assert data_directories(
+        [
+            Path("/dev"),
+            Path("/proc/self"),
+            Path("/sys/kernel"),
+            tmp_path,
+            tmp_path,
+            Path("/dev/shm"),
+        ]
+    ) == [tmp_path]
 
 
 def smash_page_headers(db: Path) -> None:

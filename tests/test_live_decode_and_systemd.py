@@ -40,7 +40,16 @@ def _read_lines(stream: object, count: int, timeout: float) -> list[str]:
 def test_decode_port_prints_both_directions_until_ctrl_c(tmp_path: Path) -> None:
     with PtyPair(tmp_path / "tty") as pty:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "cc_daemon", "decode", "--json", "--port", str(pty.path)],
+            [
+                sys.executable,
+                "-m",
+                "cc_daemon",
+                "decode",
+                "--json",
+                "--shared",
+                "--port",
+                str(pty.path),
+            ],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,

@@ -8,14 +8,16 @@ it forms a valid frame that overlaps it.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from typing import Any
+import io
+import json
+import subprocess
+import sys
 
 import pytest
-import structlog
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
+from cc_daemon.logsetup import configure_logging
 from cc_daemon.protocol import (
     Ack,
     CorruptFrame,
@@ -38,13 +40,6 @@ MAX_FRAME = 26
 relaxed = settings(deadline=None)
 
 Event = Message | CorruptFrame
-
-
-@pytest.fixture(autouse=True)
-def logs() -> Iterator[list[dict[str, Any]]]:
-    """The structlog events logged during the test (unconfigured, they would print)."""
-    with structlog.testing.capture_logs() as captured:
-        yield captured
 
 
 def as_comparable(events: list[Event]) -> list[Message | tuple[str, bytes]]:
@@ -280,16 +275,43 @@ def test_unknown_type_after_a_sync_byte_is_counted_and_skipped() -> None:
     assert parser.stats.bytes_discarded == 4
 
 
-def test_corrupt_frames_are_logged_at_debug_with_their_bytes(
-    logs: list[dict[str, Any]],
-) -> None:
+def test_corrupt_frames_are_logged_at_debug_with_their_bytes_by_the_daemons_setup() -> None:
+    out = io.StringIO()
+    configure_logging("json", "debug", out)
     parser = Parser()
     parser.feed(MANUAL_P_T + b"PX")
     parser.close()
-    assert [(e["log_level"], e["event"], e["kind"], e["bytes"]) for e in logs] == [
-        ("debug", "corrupt frame", "bad_checksum", MANUAL_P_T.hex(" ").upper()),
-        ("debug", "corrupt frame", "unknown_type", "50 58"),
+    logs = [json.loads(line) for line in out.getvalue().splitlines()]
+    assert [(e["level"], e["logger"], e["event"], e["kind"], e["bytes"]) for e in logs] == [
+        (
+            "debug",
+            "cc_daemon.protocol",
+            "corrupt frame",
+            "bad_checksum",
+            MANUAL_P_T.hex(" ").upper(),
+        ),
+        ("debug", "cc_daemon.protocol", "corrupt frame", "unknown_type", "50 58"),
     ]
+
+
+def test_corrupt_frames_are_not_logged_above_debug() -> None:
+    out = io.StringIO()
+    configure_logging("json", "info", out)
+    Parser().feed(MANUAL_P_T + b"PX")
+    assert out.getvalue() == ""
+
+
+def test_the_parser_as_a_library_is_silent_unless_logging_is_configured() -> None:
+    # A fresh interpreter: nothing configured, as for any program importing the parser.
+    code = (
+        "from cc_daemon.protocol import Parser\n"
+        f"p = Parser(); p.feed(bytes.fromhex({MANUAL_P_T.hex()!r}) + b'PX'); p.close()\n"
+        "assert p.stats.errors == 2, p.stats\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=30, check=False
+    )
+    assert (done.returncode, done.stdout, done.stderr) == (0, "", "")
 
 
 # ---------------------------------------------------------------- statistics and bounds

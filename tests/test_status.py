@@ -84,6 +84,7 @@ async def test_status_while_a_cast_runs_and_after(make_daemon: MakeDaemon) -> No
         "port": str(daemon.pty.path),
         "baudrate": 9600,
         "port_losses": 0,
+        "open_attempts": 0,
     }
     assert doc["fix"]["frame"] == "P-M" and doc["fix"]["lat_e7"] == 404506308
     assert 1.5 < doc["fix"]["age_s"] < 10

@@ -119,11 +119,14 @@ def plan_cast(
     if max_line_m < depth:
         depth, limited_by = max_line_m, "line"
     if depth < settings.min_depth_m:
+        # One value for the record and the reason: a bottom inside the clearance
+        # plans no descent at all (0 m), never a negative depth.
+        planned = max(depth, 0.0)
         return SkipCast(
-            planned_depth_m=max(depth, 0.0),
+            planned_depth_m=planned,
             water_depth_m=water_depth,
             reason=(
-                f"planned depth {depth:.2f} m ({limited_by}-limited: sonar {water_depth} m, "
+                f"planned depth {planned:.2f} m ({limited_by}-limited: sonar {water_depth} m, "
                 f"clearance {settings.bottom_clearance_m} m) is under min_depth_m "
                 f"{settings.min_depth_m} m"
             ),

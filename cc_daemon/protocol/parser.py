@@ -21,17 +21,20 @@ inside it.
 
 Timestamps are information only: nothing here rejects, reorders or drops a
 frame because of its timestamp.
+
+It logs through the standard library's `logging` (logger "cc_daemon.protocol"),
+so as a library it is silent unless its user configures logging; the daemon's
+logging setup routes those records into its own output.
 """
 
 from __future__ import annotations
 
+import logging
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Flag, StrEnum
 from typing import NamedTuple
-
-import structlog
 
 from cc_daemon.errors import FrameError
 from cc_daemon.protocol.frames import (
@@ -45,7 +48,7 @@ from cc_daemon.protocol.frames import (
 )
 from cc_daemon.protocol.messages import Message
 
-_log = structlog.get_logger("cc_daemon.protocol")
+_log = logging.getLogger("cc_daemon.protocol")
 
 
 class Sender(Flag):
@@ -208,7 +211,17 @@ class Parser:
             stats.bad_field += 1
         else:
             stats.truncated += 1
-        _log.debug("corrupt frame", kind=str(error.kind), bytes=error.hex(), detail=error.detail)
+        if _log.isEnabledFor(logging.DEBUG):
+            _log.debug(
+                "corrupt frame",
+                extra={
+                    "fields": {
+                        "kind": str(error.kind),
+                        "bytes": error.hex(),
+                        "detail": error.detail,
+                    }
+                },
+            )
         if self.on_error is not None:
             self.on_error(error)
 

@@ -137,16 +137,17 @@ class SondeSettings(BaseModel):
     parity: Annotated[Literal["N", "E", "O"], BeforeValidator(_upper)] = "N"
     stopbits: Literal[1, 2] = 1
     slave_id: Annotated[int, Field(ge=1, le=247)] = 80
-    period_s: _Positive = 1.0
-    idle_period_s: _Positive = 10.0
-    timeout_s: _Positive = 0.3
+    # Bounds on every period and duration, as in config.py (reasons in config/cc-daemon.toml).
+    period_s: Annotated[float, Field(ge=0.1, le=60.0)] = 1.0
+    idle_period_s: Annotated[float, Field(ge=0.1, le=3600.0)] = 10.0
+    timeout_s: Annotated[float, Field(ge=0.05, le=10.0)] = 0.3
     retries: Annotated[int, Field(ge=0, le=5)] = 1
-    reconnect_initial_s: _Positive = 0.5
-    reconnect_max_s: _Positive = 10.0
-    stale_s: _Positive = 3.0
+    reconnect_initial_s: Annotated[float, Field(ge=0.05, le=60.0)] = 0.5
+    reconnect_max_s: Annotated[float, Field(ge=0.05, le=600.0)] = 10.0
+    stale_s: Annotated[float, Field(ge=0.1, le=60.0)] = 3.0
     depth_parameter: Annotated[str, Field(min_length=1)] = "depth"
     depth_disagreement_m: _Positive = 1.0
-    bottom_contact_s: _Positive = 5.0
+    bottom_contact_s: Annotated[float, Field(ge=0.1, le=600.0)] = 5.0
     bottom_contact_tolerance_m: _Positive = 0.05
     parameters: tuple[SondeParameter, ...] = DEFAULT_PARAMETERS
 

@@ -56,6 +56,8 @@ def _link(src: Source) -> dict[str, Any]:
         "port": src.daemon.link.port,
         "baudrate": src.daemon.settings.serial.baudrate,
         "port_losses": src.snapshot.port_losses,
+        # Failed attempts to open it since it was last open (a missing USB adapter).
+        "open_attempts": src.snapshot.port_open_attempts,
     }
 
 

@@ -69,7 +69,12 @@ def status_lines(doc: Document) -> list[tuple[str, str]]:
         (
             "link",
             f"{state} on {link.get('port', '?')} at {link.get('baudrate', '?')} bit/s,"
-            f" {link.get('port_losses', 0)} port losses",
+            f" {link.get('port_losses', 0)} port losses"
+            + (
+                f", {link['open_attempts']} attempts to open it"
+                if link.get("open_attempts")
+                else ""
+            ),
         )
     )
     fix = doc.get("fix")

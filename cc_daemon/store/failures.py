@@ -100,6 +100,31 @@ def is_permanent(exc: BaseException) -> bool:
     return "malformed" in text or "not a database" in text
 
 
+# Trees that hold devices and kernel files: no journal file or spill file, ever.
+SYSTEM_TREES = (Path("/dev"), Path("/proc"), Path("/sys"))
+
+
+def state_directories() -> list[Path]:
+    """The service's state directory, if systemd gave one (`StateDirectory=`)."""
+    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return [Path(state)] if state else []
+
+
+def data_directories(candidates: list[Path]) -> list[Path]:
+    """`candidates` in order, without repeats and without any under `SYSTEM_TREES`
+    (a journal configured as /dev/null must not leave its spill file in /dev)."""
+    kept: list[Path] = []
+    for directory in candidates:
+        try:
+            real = Path(os.path.realpath(directory))
+        except (OSError, ValueError):
+            continue
+        system = any(real == tree or tree in real.parents for tree in SYSTEM_TREES)
+        if not system and real not in kept:
+            kept.append(real)
+    return kept
+
+
 def utc_stamp(wall_s: float) -> str:
     return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(wall_s))
 

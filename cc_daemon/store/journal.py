@@ -8,6 +8,12 @@ stamps its row (monotonic time, wall-clock UTC, whether the clock looked
 synchronised), hands it to the buffered writer (`writer.BufferedWriter`) and
 returns in about a microsecond; it never raises into the daemon and never
 drops a cast sample while a telemetry fix or an event could be dropped instead.
+
+With a `telemetry_rate_hz` (the daemon always gives one), fixes are thinned to
+that rate (`thinning.FixThinner`: the latest of each interval kept, the others
+counted in a `telemetry_thinned` event at most every minute) and the buffer is
+sized from it (`buffer_rows`), so that no input can fill the disk or the memory
+faster than a known bound.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from cc_daemon.protocol import StartMeasuring, Telemetry
 from cc_daemon.store import sonde
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
+from cc_daemon.store.thinning import FixThinner
 from cc_daemon.store.writer import BufferedWriter
 
 PHASES = frozenset({"soaking", "descending", "dwelling", "ascending", "aborting", "stranded"})
@@ -34,6 +41,19 @@ TIMESYNC_FLAG = Path("/run/systemd/timesync/synchronized")
 BOOT_ID = Path("/proc/sys/kernel/random/boot_id")
 SYNC_CHECK_INTERVAL_S = 1.0
 UNFINISHED_REASON = "no end recorded: the daemon stopped during the cast (crash, kill or power cut)"
+# The in-memory buffer of a thinned journal holds what an hour without a
+# writable disk brings at most: telemetry at its rate, depth samples at the
+# fastest report period allowed (0.2 s), and room for events. At 2 Hz that is
+# 26,200 rows, some 10 MB.
+BUFFER_SPAN_S = 3600.0
+MAX_SAMPLE_HZ = 5.0
+EVENT_ROOM_ROWS = 1000
+
+
+def buffer_rows(telemetry_rate_hz: float) -> int:
+    """Rows to hold in memory for a journal thinned to `telemetry_rate_hz`."""
+    return int(BUFFER_SPAN_S * (telemetry_rate_hz + MAX_SAMPLE_HZ)) + EVENT_ROOM_ROWS
+
 
 # Row kinds besides `FIX` (0, a telemetry fix; see `buffer`): a row is the kind,
 # then its values in the order of the matching INSERT.
@@ -202,15 +222,27 @@ class Journal(BufferedWriter):
         monotonic: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
         timesync_flag: Path = TIMESYNC_FLAG,
-        max_buffered_rows: int = 100_000,
+        max_buffered_rows: int | None = None,
         on_connect: Callable[[sqlite3.Connection], None] | None = None,
         winch_backend: str | None = None,
         simulated: bool | None = None,
+        telemetry_rate_hz: float | None = None,
     ) -> None:
         """`on_connect` is called with every new connection before use (tests use it
         to set `PRAGMA max_page_count`, which makes SQLite report a full disk).
         `winch_backend` and `simulated` go on the session and on every cast (None:
-        not recorded)."""
+        not recorded).
+
+        `telemetry_rate_hz` None keeps every fix (a library default; the daemon
+        always passes its `store.telemetry_rate_hz`). `max_buffered_rows` None
+        sizes the buffer from the rate (`buffer_rows`), or 100,000 rows unthinned.
+        """
+        self._thinner = FixThinner(telemetry_rate_hz) if telemetry_rate_hz is not None else None
+        self._sized_by_rate = max_buffered_rows is None and telemetry_rate_hz is not None
+        if max_buffered_rows is None:
+            max_buffered_rows = (
+                100_000 if telemetry_rate_hz is None else buffer_rows(telemetry_rate_hz)
+            )
         super().__init__(
             path, wall=wall, max_buffered_rows=max_buffered_rows, on_connect=on_connect
         )
@@ -266,26 +298,84 @@ class Journal(BufferedWriter):
         try:
             mono = self._monotonic()
             ts, lon, lat, alt, sonar, confidence, *mode = msg  # mode: the 26-byte M's
-            self._append(
-                (
-                    FIX,
-                    mono,
-                    self._wall(),
-                    self._clock_synced(mono),
-                    msg.frame,
-                    ts,
-                    lon,
-                    lat,
-                    alt,
-                    sonar,
-                    confidence,
-                    mode[0] if mode else None,
-                    ap_time_s,
-                    ap_time_order,
-                )
+            row = (
+                FIX,
+                mono,
+                self._wall(),
+                self._clock_synced(mono),
+                msg.frame,
+                ts,
+                lon,
+                lat,
+                alt,
+                sonar,
+                confidence,
+                mode[0] if mode else None,
+                ap_time_s,
+                ap_time_order,
             )
+            thinner = self._thinner
+            if thinner is None:
+                self._append(row)
+                return
+            with self._lock:
+                ready = thinner.offer(row, mono)
+                thinned = thinner.report(mono)
+            if ready is not None:
+                self._append(ready)
+            if thinned:
+                self._report_thinned(thinned)
         except Exception as exc:
             self._errors.error("record_fix", "journal could not record a fix", error=repr(exc))
+
+    def set_telemetry_rate(self, rate_hz: float) -> None:
+        """Thin telemetry to `rate_hz` from now on (a reload); a journal made without
+        a rate starts thinning. A buffer sized from the rate is resized with it."""
+        with self._lock:
+            if self._thinner is None:
+                self._thinner = FixThinner(rate_hz)
+                self._sized_by_rate = True
+            else:
+                self._thinner.set_rate(rate_hz)
+            if self._sized_by_rate:
+                self._max_rows = buffer_rows(rate_hz)
+
+    def _report_thinned(self, count: int) -> None:
+        assert self._thinner is not None
+        self.record_event(
+            "telemetry_thinned",
+            dropped=count,
+            rate_hz=self._thinner.rate_hz,
+            note="fixes beyond the journal's telemetry rate: the latest of each interval is kept",
+        )
+
+    def _before_pass(self) -> None:
+        # The writer thread: a held fix whose interval is over goes to the buffer.
+        if self._thinner is None:
+            return
+        try:
+            mono = self._monotonic()
+            with self._lock:
+                ready = self._thinner.due(mono)
+            if ready is not None:
+                self._buffer_row(ready)
+        except Exception as exc:
+            self._errors.error("held_fix", "journal could not release a held fix", error=repr(exc))
+
+    def close(self, timeout: float = 5.0) -> None:
+        """As `BufferedWriter.close`, after the last held fix and the count of thinned ones."""
+        if not self._closed and self._thinner is not None:
+            try:
+                with self._lock:
+                    held = self._thinner.take()
+                    thinned = self._thinner.report(self._monotonic(), everything=True)
+                if held is not None:
+                    self._append(held)
+                if thinned:
+                    self._report_thinned(thinned)
+            except Exception as exc:
+                self._errors.error("close", "journal could not keep its last fix", error=repr(exc))
+        super().close(timeout)
 
     def start_cast(
         self,

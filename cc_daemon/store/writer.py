@@ -34,11 +34,12 @@ When writing fails, the rows stay in the buffer, the error is logged at most
 every `LOG_INTERVAL_S` with a count of repeats, and the writer reconnects and
 retries every `RETRY_INTERVAL_S`. A file that can never be used (corrupt, not a
 database, another program's, a newer cc-daemon's) is left untouched and the
-journal goes on in a fresh file beside it (`<name>-<UTC stamp>.db`, or in the
-temporary directory if that fails); `health().path` says which file is in use.
-Rows still unwritten when the journal closes are saved as JSON lines
-(`<name>-unwritten-<UTC stamp>.jsonl` beside the journal, else in the temporary
-directory) rather than lost.
+journal goes on in a fresh file beside it (`<name>-<UTC stamp>.db`, else in the
+state directory, else in the temporary directory); `health().path` says which
+file is in use. Rows still unwritten when the journal closes are saved as JSON
+lines (`<name>-unwritten-<UTC stamp>.jsonl` beside the journal, else in the
+state directory; never in the temporary directory, which systemd's PrivateTmp
+wipes, nor under /dev, /proc or /sys) rather than lost.
 """
 
 from __future__ import annotations
@@ -57,10 +58,12 @@ from cc_daemon.store.buffer import FIX, Row, RowBuffer
 from cc_daemon.store.failures import (
     ROW_ERRORS,
     STORAGE_ERRORS,
+    data_directories,
     emit,
     free_bytes,
     is_full,
     is_permanent,
+    state_directories,
     unused_path,
     utc_stamp,
     write_new_file,
@@ -143,6 +146,9 @@ class BufferedWriter(RowBuffer):
     def _rows_to_rewrite(self) -> list[Row]:
         """Rows already committed to a file abandoned since, that the fresh one needs too."""
         return []
+
+    def _before_pass(self) -> None:
+        """Called by the writer thread before each pass (rows held back may be due)."""
 
     def _spill_line(self, row: Row) -> str:
         return repr(row)
@@ -315,6 +321,7 @@ class BufferedWriter(RowBuffer):
                 break
 
     def _writer_pass(self) -> None:
+        self._before_pass()
         was_failing = self._failing
         if self._conn is None:
             try:
@@ -472,16 +479,13 @@ class BufferedWriter(RowBuffer):
             pending_rows=self._pending_locked(),
         )
 
-    def _fallback_dirs(self) -> list[Path]:
-        """Where a fresh file or a spill file may go: beside the journal, else $TMPDIR."""
-        directories: list[Path] = []
-        candidates = [self._active.parent, self.path.parent]
-        with contextlib.suppress(Exception):  # no usable temporary directory at all
-            candidates.append(Path(tempfile.gettempdir()))
-        for directory in candidates:
-            if directory not in directories:
-                directories.append(directory)
-        return directories
+    def _fallback_dirs(self, *, temporary: bool = True) -> list[Path]:
+        """Where a fresh file (or, without `temporary`, a spill file) may go."""
+        candidates = [self._active.parent, self.path.parent, *state_directories()]
+        if temporary:
+            with contextlib.suppress(Exception):  # no usable temporary directory at all
+                candidates.append(Path(tempfile.gettempdir()))
+        return data_directories(candidates)
 
     def _connect(self, path: Path) -> list[int]:
         """Open the file and make it ready (`_prepare`), then tell `_connected`."""
@@ -597,7 +601,7 @@ class BufferedWriter(RowBuffer):
         try:
             stamp = utc_stamp(time.time())
             name = f"{self.path.stem}-unwritten-{stamp}.jsonl"
-            directories = self._fallback_dirs()
+            directories = self._fallback_dirs(temporary=False)
             lines = "".join(self._spill_line(row) + "\n" for row in rows)
         except Exception as exc:
             emit("error", "journal could not prepare its spill file", error=repr(exc))
