@@ -101,7 +101,7 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 def build_parser() -> argparse.ArgumentParser:
     from cc_daemon import datacli
-    from cc_daemon.sim import runner
+    from cc_daemon.sim import commands as simulator
 
     parser = argparse.ArgumentParser(
         prog="cc-daemon",
@@ -115,11 +115,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a whole survey against a simulated autopilot over a pty pair",
     )
     _add_daemon_options(parser)
-    runner.add_simulate_arguments(parser)
+    simulator.add_simulate_arguments(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_decode(sub)
     datacli.add_commands(sub)
-    runner.add_commands(sub)
+    simulator.add_commands(sub)
     return parser
 
 
@@ -189,7 +189,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             code: int = handler(args)
             return code
         if args.simulate:
-            from cc_daemon.sim.runner import run_from_args
+            from cc_daemon.sim.commands import run_from_args
 
             return run_from_args(args, _load(args))
         return _run_daemon(args)

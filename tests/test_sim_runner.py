@@ -20,29 +20,30 @@ from cc_daemon.config import Settings
 from cc_daemon.service import Daemon
 from cc_daemon.sim import mission as mission_module
 from cc_daemon.sim.autopilot import Autopilot
-from cc_daemon.sim.console import SimConsole
-from cc_daemon.sim.mission import make_mission
-from cc_daemon.sim.pty import PtyPair
-from cc_daemon.sim.runner import (
+from cc_daemon.sim.commands import (
     EXIT_USAGE,
+    add_commands,
+    add_simulate_arguments,
+    options_from_args,
+    run_from_args,
+)
+from cc_daemon.sim.console import SimConsole
+from cc_daemon.sim.logtap import LogTap
+from cc_daemon.sim.mission import make_mission
+from cc_daemon.sim.options import (
     FAST,
     REALTIME,
     AutopilotOnlyOptions,
-    LogTap,
     Pace,
     SimOptions,
-    _Run,
-    add_commands,
-    add_simulate_arguments,
     autopilot_config,
-    build_summary,
     daemon_settings,
-    options_from_args,
     plan_is_predictable,
-    run_autopilot,
-    run_from_args,
-    run_simulation,
 )
+from cc_daemon.sim.pty import PtyPair
+from cc_daemon.sim.runner import run_autopilot, run_simulation
+from cc_daemon.sim.session import Run
+from cc_daemon.sim.summary import build_summary
 from cc_daemon.store import JournalReader
 
 REPO = Path(__file__).resolve().parent.parent
@@ -374,7 +375,7 @@ async def test_simulate_autopilot_on_a_serial_port_against_a_daemon(tmp_path: Pa
 # ---------------------------------------------------------------- the summary, without a run
 
 
-def _one_cast_run(*, drop_at: float | None = None) -> _Run:
+def _one_cast_run(*, drop_at: float | None = None) -> Run:
     """A run whose autopilot saw S1 cast (deepest R-M 0.75 m, then R-F) and nothing else."""
     from cc_daemon.protocol import Ack, DepthReport, Finished
     from cc_daemon.sim.autopilot import AutopilotConfig, Phase
@@ -388,11 +389,11 @@ def _one_cast_run(*, drop_at: float | None = None) -> _Run:
     autopilot.on_frame(now, Ack(0))
     autopilot.on_frame(now + 0.5, DepthReport(0, 750))
     autopilot.on_frame(now + 1.5, Finished(0, 0))
-    return _Run(mission, autopilot, SimConsole(io.StringIO(), live=False), drop_at=drop_at)
+    return Run(mission, autopilot, SimConsole(io.StringIO(), live=False), drop_at=drop_at)
 
 
 def test_reached_is_the_journals_depth_not_the_deepest_report_that_arrived() -> None:
-    from cc_daemon.sim.runner import JournalCast
+    from cc_daemon.sim.summary import JournalCast
 
     run = _one_cast_run()
     stalled = JournalCast(1, 2.69, 1.0, "aborted", "winch fault: stall at 1.00 m")
@@ -492,7 +493,7 @@ def test_the_log_tap_has_no_finaliser_to_trip_over_a_closed_file(tmp_path: Path)
     """Under `python -X dev`, an io stream's finaliser flushing a closed file is reported."""
     script = (
         "import gc, sys\n"
-        "from cc_daemon.sim.runner import LogTap\n"
+        "from cc_daemon.sim.logtap import LogTap\n"
         f"file = open({str(tmp_path / 'log')!r}, 'w')\n"
         "tap = LogTap(file, lambda: 0.0)\n"
         "tap.write('{}\\n')\n"

@@ -5,7 +5,10 @@
 - `mission`: stations, transits and the water-depth field (pure).
 - `autopilot`: the firmware's behaviour as a sans-IO state machine (pure).
 - `console`: the live view and the end-of-run summary.
-- `runner`: wires them to the daemon, in-process, and the command-line options.
+- `options`: a run's pace and options, and the daemon's settings for it (pure).
+- `session`: one run's frame loop and its narration; `logtap`: the daemon's log lines.
+- `summary`: the journal's casts, the per-station rows and the verdict.
+- `runner`: wires them to the daemon, in-process; `commands`: the command line.
 
 The simulator speaks to the daemon only through the wire protocol (the codec
 in `cc_daemon.protocol`); it never reaches into the daemon's internals except
