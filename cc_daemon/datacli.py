@@ -55,13 +55,21 @@ def _cast_id(text: str) -> int:
 
 
 SERVICE_JOURNAL = Path("/var/lib/cc-daemon/cc-daemon.db")  # StateDirectory= of the unit
+SIMULATOR_JOURNAL = Path("simulate.db")  # `cc-daemon --simulate`'s default --db
 
 
 def journal_path(args: argparse.Namespace) -> Path:
-    """The journal to read: `--db`; else where this machine's daemon writes it:
-    `store.path` from its configuration (the same file and environment lookup),
-    else the systemd service's state directory if a journal is there, else the
-    default location."""
+    """The journal to read, said on stderr: `--db`; else where this machine's daemon
+    writes it: `store.path` from its configuration (the same file and environment
+    lookup), else the systemd service's state directory if a journal is there, else
+    the default location if one is there, else the simulator's `./simulate.db`
+    if that is the one here."""
+    path = _find_journal(args)
+    print(f"reading {path}", file=sys.stderr)
+    return path
+
+
+def _find_journal(args: argparse.Namespace) -> Path:
     if args.db is not None:
         return Path(args.db)
     try:
@@ -73,7 +81,10 @@ def journal_path(args: argparse.Namespace) -> Path:
         return configured
     if "STATE_DIRECTORY" not in os.environ and SERVICE_JOURNAL.exists():
         return SERVICE_JOURNAL
-    return default_store_path()
+    default = default_store_path()
+    if not default.exists() and SIMULATOR_JOURNAL.exists():
+        return SIMULATOR_JOURNAL
+    return default
 
 
 def add_commands(
@@ -91,7 +102,8 @@ def add_commands(
         f"the journal file (default: {db})"
         if db is not None
         else "the journal file (default: the configured store.path, else "
-        f"{SERVICE_JOURNAL} if it exists, else ./cc-daemon.db)"
+        f"{SERVICE_JOURNAL} if it exists, else ./cc-daemon.db, else ./{SIMULATOR_JOURNAL} "
+        "if it exists; the file read is said on stderr)"
     )
     since_help = "only data from this UTC time on (ISO 8601, e.g. 2024-05-01T10:00Z)"
 
@@ -171,6 +183,10 @@ def _run_plot(args: argparse.Namespace) -> int:
     return _guarded("plot", _plot, args)
 
 
+def _plural(count: int, noun: str) -> str:
+    return f"{count} {noun}" if count == 1 else f"{count} {noun}s"
+
+
 def _number(value: float | None, width: int, digits: int) -> str:
     return f"{'-':>{width}}" if value is None else f"{value:>{width}.{digits}f}"
 
@@ -242,13 +258,13 @@ def _export(args: argparse.Namespace) -> int:
                 casts = reader.casts(cast_id=args.cast, since=args.since)
                 samples = reader.samples(cast_id=args.cast)
                 count = netcdf.write(casts, samples, args.output)
-                noun = f"{len(casts)} casts, {count} samples"
+                noun = f"{_plural(len(casts), 'cast')}, {_plural(count, 'sample')}"
             elif args.format == "geojson":
                 casts = reader.casts(cast_id=args.cast, since=args.since)
                 fixes = reader.fixes(cast_id=args.cast, since=args.since)
                 with _output(args.output) as out:
                     count = geojson.write(casts, fixes, out)
-                noun = f"{count} features"
+                noun = _plural(count, "feature")
             else:
                 with _output(args.output, newline="") as out:
                     if what == "samples":
@@ -261,7 +277,7 @@ def _export(args: argparse.Namespace) -> int:
                         )
                     else:
                         count = csv.write_events(reader.events(since=args.since), out)
-                noun = f"{count} {what} rows"
+                noun = f"{_plural(count, 'row')} of {what}"
     except BrokenPipeError:
         # The reader of our stdout left (`| head`): not an error. Point stdout
         # at /dev/null so the interpreter's final flush does not complain.

@@ -221,6 +221,6 @@ def test_netcdf_needs_its_extra_and_a_cast(
     with pytest.raises(ValueError, match="no casts"):
         netcdf.write([], [], tmp_path / "empty.nc")
     monkeypatch.setitem(sys.modules, "netCDF4", None)  # import netCDF4 now fails
-    with pytest.raises(OptionalDependencyError, match=r"pip install 'cc-daemon\[netcdf\]'"):
+    with pytest.raises(OptionalDependencyError, match=r"-m pip install 'netCDF4>=1.6'"):
         netcdf.write([], [], tmp_path / "x.nc")
     assert not (tmp_path / "x.nc").exists()

@@ -84,5 +84,5 @@ def test_missing_matplotlib_says_which_extra_to_install(
     with JournalReader(survey_db) as reader:
         casts, fixes = reader.casts(), reader.fixes()
     monkeypatch.setitem(sys.modules, "matplotlib", None)
-    with pytest.raises(OptionalDependencyError, match=r"pip install 'cc-daemon\[plot\]'"):
+    with pytest.raises(OptionalDependencyError, match=r"-m pip install 'matplotlib>=3.8'"):
         plot_survey(casts, fixes, tmp_path / "survey.png")

@@ -13,8 +13,16 @@ import sys
 from typing import TYPE_CHECKING
 
 from cc_daemon.sim.mission import make_mission
-from cc_daemon.sim.options import STALL_AT_M, AutopilotOnlyOptions, SimOptions
+from cc_daemon.sim.options import (
+    FAST,
+    PACES,
+    REALTIME,
+    STALL_AT_M,
+    AutopilotOnlyOptions,
+    SimOptions,
+)
 from cc_daemon.sim.runner import run_autopilot, run_simulation
+from cc_daemon.sim.summary import EXIT_STATUSES
 
 if TYPE_CHECKING:
     from cc_daemon.config import Settings
@@ -70,14 +78,18 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group(
         "--simulate options",
         "A whole survey on this machine: the daemon against a simulated autopilot over a "
-        "pty pair. The journal goes to --db (default ./simulate.db).",
+        "pty pair. The journal goes to --db (default ./simulate.db). " + EXIT_STATUSES,
     )
     _mission_arguments(group)
     group.add_argument(
-        "--realtime",
-        action="store_true",
-        help="real speeds: boat 1.5 m/s, the configured winch and cast (minutes per station)",
+        "--pace",
+        choices=tuple(PACES),
+        default=FAST.name,
+        help="fast (the default): brisk transits, a 1.25 m/s winch and short dwells, "
+        "overriding your cast settings (the header lists each change); real: a 1.5 m/s "
+        "boat and your own winch and cast settings, unchanged (minutes per station)",
     )
+    group.add_argument("--realtime", action="store_true", help="the same as --pace real")
     group.add_argument(
         "--corrupt",
         type=_rate,
@@ -113,7 +125,7 @@ def options_from_args(args: argparse.Namespace, settings: Settings | None) -> Si
     return SimOptions(
         stations=args.stations,
         seed=args.seed,
-        realtime=args.realtime,
+        realtime=args.realtime or args.pace == REALTIME.name,
         corrupt=args.corrupt,
         drop_link_at=args.drop_link_at,
         drop_link_for=args.drop_link_for,
@@ -143,8 +155,7 @@ def add_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
         "simulate-autopilot",
         help="the simulated autopilot alone, on a serial port (against a daemon elsewhere)",
         description="Run the simulated autopilot on a real serial port, e.g. a USB-serial "
-        "cable to a Raspberry Pi running cc-daemon. Exit status 0 when every station got "
-        "its R-F with no protocol violation.",
+        "cable to a Raspberry Pi running cc-daemon. " + EXIT_STATUSES,
     )
     p.add_argument("--port", required=True, help="serial device, e.g. /dev/ttyUSB0")
     p.add_argument("--baudrate", type=int, default=9600, help="(9600, 8N1)")

@@ -50,7 +50,9 @@ FAST = Pace(
     finish_margin_s=5.0,
 )
 # The boat as it is: one frame a second, 1.5 m/s (3 knots), the daemon's own settings.
-REALTIME = Pace("realtime", frame_period_s=1.0, boat_speed_m_s=1.5, winch_speed_m_s=None)
+# `--pace real`; `--realtime` is its older spelling.
+REALTIME = Pace("real", frame_period_s=1.0, boat_speed_m_s=1.5, winch_speed_m_s=None)
+PACES = {pace.name: pace for pace in (FAST, REALTIME)}
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,6 +150,32 @@ def plan_is_predictable(cast: CastSettings) -> bool:
         cast.target_depth_m, MIN_CASTABLE_WATER_M - SONAR_MAX_NOISE_M - cast.bottom_clearance_m
     )
     return cast.min_sonar_confidence <= 92 and shoal_plan < cast.min_depth_m <= deep_plan
+
+
+def _number(value: float) -> str:
+    return f"{value:g}"
+
+
+def pace_changes(options: SimOptions) -> list[str]:
+    """What the run's pace changed in the user's settings, each as `key old -> new`.
+
+    Empty when the pace keeps them (`--pace real`) or they already agree: the
+    header says exactly this, so a configuration under test is never silently
+    replaced by the demo's.
+    """
+    from cc_daemon.config import Settings
+
+    pace = options.chosen_pace
+    base = options.settings or Settings()
+    changes: list[str] = []
+    speed = base.winch.sim.speed_m_s
+    if pace.winch_speed_m_s is not None and pace.winch_speed_m_s != speed:
+        changes.append(f"winch.sim.speed_m_s {_number(speed)} -> {_number(pace.winch_speed_m_s)}")
+    current = base.cast.model_dump()
+    for key, value in pace.cast.items():
+        if current[key] != value:
+            changes.append(f"cast.{key} {_number(current[key])} -> {_number(value)}")
+    return changes
 
 
 def autopilot_config(options: SimOptions, settings: Settings) -> AutopilotConfig:

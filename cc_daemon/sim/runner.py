@@ -34,10 +34,12 @@ from cc_daemon.sim.logtap import LogTap
 from cc_daemon.sim.mission import Mission, make_mission
 from cc_daemon.sim.noise import BitFlipper
 from cc_daemon.sim.options import (
+    REALTIME,
     AutopilotOnlyOptions,
     SimOptions,
     autopilot_config,
     daemon_settings,
+    pace_changes,
 )
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
@@ -62,11 +64,24 @@ def _headline(options: SimOptions, mission: Mission) -> str:
         "--resend-m" if options.resend_m else "",
     ]
     noise = " ".join(e for e in extras if e)
-    return (
+    head = (
         f"cc-daemon --simulate: {len(mission.stations)} stations, seed {mission.seed}, "
         f"{pace.name} pace, {mission.total_distance_m:.0f} m of transits"
         + (f"  [{noise}]" if noise else "")
     )
+    changes = pace_changes(options)
+    if changes:
+        head += (
+            f"\n  {pace.name} pace: boat {pace.boat_speed_m_s:g} m/s; your settings changed: "
+            + ", ".join(changes)
+            + f" (--pace {REALTIME.name} keeps them)"
+        )
+    elif pace is REALTIME:
+        head += (
+            f"\n  {pace.name} pace: boat {pace.boat_speed_m_s:g} m/s; "
+            "your winch and cast settings as configured"
+        )
+    return head
 
 
 @contextlib.contextmanager

@@ -26,6 +26,8 @@ from cc_daemon.sim.pty import PtyPair
 if TYPE_CHECKING:
     from cc_daemon.service import Daemon, DaemonStatus
 
+PROGRESS_EVERY_S = 30.0  # a transit line this often while cruising, so a long leg is not silent
+
 
 class Run:
     """One run's moving parts and the loop that moves frames between them."""
@@ -67,8 +69,9 @@ class Run:
         self._errors_seen = 0
         self._violations_seen = 0
         self._flips_seen = {True: 0, False: 0}  # inbound? -> flips passed to the autopilot
-        self._phase = autopilot.phase
+        self._phase: Phase | None = None  # None: the first leg is not narrated yet
         self._index = autopilot.index
+        self._progress_at = 0.0  # when the last "to go" line was shown
         self._link_up = False
 
     # ------------------------------------------------------------ time and ports
@@ -193,6 +196,8 @@ class Run:
         if ap.phase is not self._phase or ap.index != self._index:
             self._narrate(now)
             self._phase, self._index = ap.phase, ap.index
+        elif ap.phase is Phase.CRUISING and now - self._progress_at >= PROGRESS_EVERY_S:
+            self._cruise_progress(now)
         for violation in ap.violations[self._violations_seen :]:
             self.console.event(
                 now,
@@ -234,11 +239,14 @@ class Run:
             return
         if ap.phase is Phase.CRUISING:
             begin, end = self.mission.leg(ap.index)
+            length = begin.distance_to(end)
+            speed = ap.config.boat_speed_m_s
             self.console.event(
                 now,
-                f"under way to {station.name}: {begin.distance_to(end):.0f} m "
-                f"at {ap.config.boat_speed_m_s:g} m/s",
+                f"under way to {station.name}: {length:.0f} m at {speed:g} m/s, "
+                f"ETA {length / speed:.0f} s",
             )
+            self._progress_at = now
         elif ap.phase is Phase.REQUESTING:
             self.console.event(
                 now,
@@ -247,6 +255,20 @@ class Run:
             )
         elif ap.phase is Phase.CASTING:
             self.console.event(now, f"{station.name}: R-O, the daemon has the station")
+
+    def _cruise_progress(self, now: float) -> None:
+        """On a long transit (real pace), how far there is still to go, now and then."""
+        ap = self.autopilot
+        station = ap.station
+        if station is None:
+            return
+        _, end = self.mission.leg(ap.index)
+        to_go = ap.position(now).distance_to(end)
+        speed = ap.config.boat_speed_m_s
+        self.console.event(
+            now, f"under way to {station.name}: {to_go:.0f} m to go, ETA {to_go / speed:.0f} s"
+        )
+        self._progress_at = now
 
     def _view(self, now: float, status: DaemonStatus | None) -> ViewState:
         ap = self.autopilot
