@@ -29,8 +29,7 @@ import pytest
 from structlog.testing import capture_logs
 
 from cc_daemon.protocol import StartMeasuring, Telemetry
-from cc_daemon.store import Journal
-from cc_daemon.store import journal as journal_module
+from cc_daemon.store import Journal, failures
 from cc_daemon.store.schema import APPLICATION_ID
 from tests.journalkit import full_journal
 
@@ -258,7 +257,7 @@ def test_a_file_that_is_not_a_journal_is_never_touched(tmp_path: Path, kind: str
 
 
 def test_repeated_errors_are_rate_limited_never_silenced(monkeypatch: pytest.MonkeyPatch) -> None:
-    limiter = journal_module._RateLimitedLog(0.3)
+    limiter = failures.RateLimitedLog(0.3)
     with capture_logs() as logs:
         for _ in range(5):
             limiter.error("same", "journal write failed", error="disk full")

@@ -26,8 +26,7 @@ from structlog.testing import capture_logs
 
 from cc_daemon.logsetup import configure_logging
 from cc_daemon.protocol import StartMeasuring, Telemetry
-from cc_daemon.store import Journal
-from cc_daemon.store import journal as journal_module
+from cc_daemon.store import Journal, writer
 from tests.journalkit import full_journal
 
 FIX = Telemetry(72, -37260579, 404506308, 702385, 8219, 100)
@@ -126,7 +125,7 @@ def test_transactions_are_bounded(tmp_path: Path) -> None:
     for i in range(2300):
         journal.record_fix(FIX._replace(timestamp_s=i))
     journal.close()
-    assert sizes and max(sizes) <= journal_module.MAX_TRANSACTION_ROWS
+    assert sizes and max(sizes) <= writer.MAX_TRANSACTION_ROWS
     assert sum(sizes) == 2300
     assert query(db, "SELECT count(*) FROM fixes") == [(2300,)]
 

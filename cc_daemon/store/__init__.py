@@ -1,9 +1,12 @@
 """The survey journal: a SQLite file holding every fix, cast, sample and event.
 
-Import from here. `Journal` is the write side the daemon uses from its event
-loop; `JournalReader` is the read side for the `casts`, `export` and `plot`
-commands; `schema` owns the file layout and its migrations. Nothing in this
-package imports asyncio: the journal's thread is invisible to its callers.
+Import from here. `Journal` (`journal`: what is recorded) is the write side the
+daemon uses from its event loop, on top of `writer` (the writer thread and
+SQLite transactions), `buffer` (the bounded rows in memory) and `failures`
+(what a storage error means, logging that never raises); `JournalReader` is the
+read side for the `casts`, `export` and `plot` commands; `schema` owns the file
+layout and its migrations. Nothing in this package imports asyncio: the
+journal's thread is invisible to its callers.
 """
 
 from cc_daemon.store.journal import (
