@@ -190,7 +190,7 @@ async def test_bit_flips_both_ways_are_counted_and_each_fault_they_cause_is_excu
     # Every violation was caused by a flip near it; none is left on the daemon's account.
     assert "protocol violations: 0 (+" in text
     assert "excused: " in text
-    assert "corrupt frame (bits flipped on the daemon's frames)" in text
+    assert "corrupt frame (bits flipped by --corrupt)" in text
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["completed", "skipped-shallow"]
 
 

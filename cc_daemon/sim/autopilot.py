@@ -75,6 +75,9 @@ class ViolationKind(StrEnum):
     DUPLICATE_CAST = "more than one cast at a station"  # found in the daemon's journal
 
 
+# One wording whichever way the mangled frame went: the run injected the noise both ways.
+BITS_FLIPPED = "bits flipped by --corrupt"
+
 # What a lost or mangled frame can explain, by where the noise was.
 _EXPLAINED_BY_INBOUND_LOSS = frozenset(
     {
@@ -574,9 +577,9 @@ class Autopilot:
         margin = max(config.noise_margin_s, config.frame_period_s)
         start = since if kind is ViolationKind.CORRUPT_FRAME else since - margin
         if kind in _EXPLAINED_BY_INBOUND_LOSS and _any_between(self._flips_in, start, now):
-            return "bits flipped on the daemon's frames"
+            return BITS_FLIPPED
         if kind in _EXPLAINED_BY_OUTBOUND_LOSS and _any_between(self._flips_out, start, now):
-            return "bits flipped on our frames"
+            return BITS_FLIPPED
         return None
 
 
