@@ -143,7 +143,7 @@ def add_commands(
 
     plot = subparsers.add_parser(
         "plot",
-        help="plot a cast or the survey as a PNG",
+        help="plot a cast or the survey (PNG, PDF or SVG)",
         description="Plot one cast (depth against time, phases shaded) or the survey (track"
         " coloured by sonar depth, stations). Needs the 'plot' extra (matplotlib).",
     )
@@ -152,7 +152,14 @@ def add_commands(
     which.add_argument("--cast", type=_cast_id, metavar="N", help="plot cast N")
     which.add_argument("--survey", action="store_true", help="plot the whole survey")
     plot.add_argument("--since", type=_since, metavar="TIME", help=f"with --survey: {since_help}")
-    plot.add_argument("-o", "--output", type=Path, metavar="FILE", required=True, help="PNG file")
+    plot.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        metavar="FILE",
+        required=True,
+        help="the image: its extension says the format (.png, .pdf or .svg)",
+    )
     plot.set_defaults(handler=_run_plot)
 
 
@@ -293,6 +300,10 @@ def _plot(args: argparse.Namespace) -> int:
 
     if args.since is not None and not args.survey:
         raise _UsageError("--since applies to --survey only")
+    try:
+        plot.output_format(args.output)
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
     db = journal_path(args)
     with JournalReader(db) as reader:
         if args.survey:

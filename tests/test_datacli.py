@@ -168,6 +168,7 @@ def test_export_geojson_and_netcdf_files(
         (["export", "--format", "csv", "--cast", "99"], 1, "no cast 99 in"),
         (["plot", "--cast", "1", "-o", "x.png"], 1, "cast 1 has no depth samples"),
         (["plot", "--cast", "2", "--since", "2024-01-01", "-o", "x.png"], 2, "--since applies"),
+        (["plot", "--survey", "-o", "x.jpg"], 2, "x.jpg: the extension says which format"),
     ],
 )
 def test_usage_and_data_errors_are_one_line_and_a_status(
