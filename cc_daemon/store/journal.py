@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cc_daemon import __version__
+from cc_daemon import __version__, clocksync
 from cc_daemon.protocol import StartMeasuring, Telemetry
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
@@ -29,7 +29,6 @@ from cc_daemon.store.writer import BufferedWriter
 
 PHASES = frozenset({"soaking", "descending", "dwelling", "ascending", "aborting", "stranded"})
 OUTCOMES = frozenset({"completed", "skipped-shallow", "aborted", "unfinished"})
-TIMESYNC_FLAG = Path("/run/systemd/timesync/synchronized")
 BOOT_ID = Path("/proc/sys/kernel/random/boot_id")
 SYNC_CHECK_INTERVAL_S = 1.0
 UNFINISHED_REASON = "no end recorded: the daemon stopped during the cast (crash, kill or power cut)"
@@ -181,7 +180,7 @@ class Journal(BufferedWriter):
         *,
         monotonic: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
-        timesync_flag: Path = TIMESYNC_FLAG,
+        clock_synced: Callable[[], bool] = clocksync.clock_synced,
         max_buffered_rows: int = 100_000,
         on_connect: Callable[[sqlite3.Connection], None] | None = None,
     ) -> None:
@@ -191,7 +190,7 @@ class Journal(BufferedWriter):
             path, wall=wall, max_buffered_rows=max_buffered_rows, on_connect=on_connect
         )
         self._monotonic = monotonic
-        self._timesync_flag = str(timesync_flag)
+        self._clock_synced_now = clock_synced
         self._next_cast_id = 1  # guarded by _lock: the writer raises it past the file's
 
         # Loop-thread only.
@@ -338,11 +337,17 @@ class Journal(BufferedWriter):
             self._errors.error("record_event", "journal could not record an event", error=repr(exc))
 
     def _clock_synced(self, mono: float) -> int:
-        # A stat() a second at most: the flag changes once per boot or so.
+        # One adjtimex a second at most: the kernel's sync state changes rarely.
         if not 0.0 <= mono - self._sync_checked_at < SYNC_CHECK_INTERVAL_S:
             self._sync_checked_at = mono
-            self._synced = 1 if os.path.exists(self._timesync_flag) else 0
+            self._synced = self._ask_clock_synced()
         return self._synced
+
+    def _ask_clock_synced(self) -> int:
+        try:
+            return 1 if self._clock_synced_now() else 0
+        except Exception:  # never into the daemon: an unknown clock is not a synchronised one
+            return 0
 
     # ------------------------------------------------- the writer's hooks
 
@@ -399,7 +404,7 @@ class Journal(BufferedWriter):
                 f"cc-daemon {__version__}",
                 mono,
                 self._wall(),
-                1 if os.path.exists(self._timesync_flag) else 0,
+                self._ask_clock_synced(),
             ),
         )
         self._session_id = cursor.lastrowid
