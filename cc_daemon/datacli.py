@@ -1,15 +1,16 @@
-"""The data commands of `cc-daemon`: `casts`, `export` and `plot`.
+"""The data commands of `cc-daemon`: `casts`, `export`, `plot` and `snapshot`.
 
 This module owns the command-line surface for getting data out of the
 journal: the arguments, which records each command takes, which writer it
 calls, its messages and its exit status (0 done; 1 the journal, the data or an
 optional package was not there; 2 the arguments were wrong). `add_commands`
-registers the three commands on the main `cc-daemon` parser, each with a
+registers the four commands on the main `cc-daemon` parser, each with a
 `handler(args) -> int`; `main` runs them alone (`python -m cc_daemon.datacli`).
 
 It reads the journal only through `JournalReader`, which opens the file
 read-only: these commands are safe to run while the daemon is recording, and
-never create, migrate or repair a journal.
+never create, migrate or repair a journal (`snapshot` writes only its new copy).
+Each says on stderr which journal it read.
 """
 
 from __future__ import annotations
@@ -92,7 +93,7 @@ def add_commands(
     *,
     default_db: Path | None = None,
 ) -> None:
-    """Register `casts`, `export` and `plot`; each sets `handler` to call with the args.
+    """Register `casts`, `export`, `plot` and `snapshot`; each sets `handler` to call with the args.
 
     `--db` defaults to `default_db` if given, else it is resolved when the
     command runs (`journal_path`).
@@ -162,6 +163,22 @@ def add_commands(
     )
     plot.set_defaults(handler=_run_plot)
 
+    snapshot = subparsers.add_parser(
+        "snapshot",
+        help="copy the journal consistently, even while the daemon writes it",
+        description="Copy the survey journal into one self-contained file with SQLite's online"
+        " backup: safe while the service runs, and what to do before pulling the SD card or"
+        " copying the data over SSH. Prints what it copied. Never overwrites a file.",
+    )
+    snapshot.add_argument(
+        "dest",
+        type=Path,
+        metavar="DEST",
+        help="the new file (refused if it exists), or a directory to put a dated copy in",
+    )
+    snapshot.add_argument("--db", type=Path, default=db, metavar="PATH", help=db_help)
+    snapshot.set_defaults(handler=_run_snapshot)
+
 
 def _guarded(name: str, run: Handler, args: argparse.Namespace) -> int:
     """Run a command, turning the errors a user can meet into one line on stderr."""
@@ -188,6 +205,22 @@ def _run_export(args: argparse.Namespace) -> int:
 
 def _run_plot(args: argparse.Namespace) -> int:
     return _guarded("plot", _plot, args)
+
+
+def _run_snapshot(args: argparse.Namespace) -> int:
+    return _guarded("snapshot", _snapshot, args)
+
+
+def _snapshot(args: argparse.Namespace) -> int:
+    from cc_daemon.store.snapshot import take_snapshot
+
+    db = journal_path(args)
+    try:
+        report = take_snapshot(db, args.dest)
+    except FileExistsError as exc:
+        raise _UsageError(f"{exc.filename} exists: refusing to overwrite it") from None
+    print(report.describe())
+    return 0
 
 
 def _plural(count: int, noun: str) -> str:
