@@ -232,6 +232,17 @@ async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["aborted"]
 
 
+async def test_ctrl_c_before_any_cast_claims_nothing_about_bringing_the_probe_home(
+    tmp_path: Path,
+) -> None:
+    code, text = await _survey_interrupted_at(tmp_path, 0.3)  # still under way to S1
+    assert code == 3, text
+    assert "Ctrl-C: no cast running, the daemon stops" in text
+    assert "interrupted before any cast: the probe never left home" in text
+    assert "brought the probe home" not in text and "brings the probe home" not in text
+    assert _casts(tmp_path) == []
+
+
 async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_be_down(
     tmp_path: Path,
 ) -> None:

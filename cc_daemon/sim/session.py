@@ -320,7 +320,13 @@ class Run:
             self.console.event(now, "interrupted")
             return
         if self.interrupts == 1:
-            self.console.event(now, "Ctrl-C: the daemon brings the probe home, then stops")
+            idle = self.daemon.snapshot().phase == "idle"
+            self.console.event(
+                now,
+                "Ctrl-C: no cast running, the daemon stops"
+                if idle
+                else "Ctrl-C: the daemon brings the probe home, then stops",
+            )
             self.daemon.request_shutdown()
         else:
             self.console.event(now, "second Ctrl-C: the daemon stops at once")
