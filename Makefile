@@ -12,7 +12,7 @@ EXTRAS_STAMP := $(VENV)/.installed-extras
 # The journal `make export` and `make plot` read: the simulator's, by default.
 DB ?= simulate.db
 
-.PHONY: test lint typecheck pytest simulate extras export plot bench clean
+.PHONY: test lint typecheck pytest simulate extras export plot bench clean install uninstall
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "cc-daemon needs Python >= 3.11; set PYTHON=python3.11")'
@@ -65,6 +65,15 @@ plot: $(EXTRAS_STAMP)
 
 bench: $(BENCH_STAMP)
 	$(BIN)/python -m benchmarks
+
+# `sudo make install`: the service, its user, a venv under $(PREFIX), the unit and a
+# default config (never overwritten). DESTDIR=dir stages it without touching the machine.
+PREFIX ?= /opt/cc-daemon
+install:
+	DESTDIR="$(DESTDIR)" PREFIX="$(PREFIX)" PYTHON="$(PYTHON)" scripts/install.sh install
+
+uninstall:
+	DESTDIR="$(DESTDIR)" PREFIX="$(PREFIX)" scripts/install.sh uninstall
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .coverage

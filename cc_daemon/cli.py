@@ -5,6 +5,8 @@
     cc-daemon decode ...                     read frames: hex, a capture on stdin, a live port
     cc-daemon casts | export | plot          the survey journal
     cc-daemon simulate-autopilot --port P    the simulated autopilot alone, on a real port
+    cc-daemon status [--json|--watch]        ask the running daemon what it is doing
+    cc-daemon doctor                         check this Pi is ready to run the service
 
 Exit status: 0 success; 1 a tool found problems (corrupt frames, a failed
 survey); 2 bad usage or configuration (nothing was opened); 130 the daemon was
@@ -101,7 +103,9 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 def build_parser() -> argparse.ArgumentParser:
     from cc_daemon import datacli
+    from cc_daemon.doctor import cli as doctor_cli
     from cc_daemon.sim import commands as simulator
+    from cc_daemon.status import cli as status_cli
 
     parser = argparse.ArgumentParser(
         prog="cc-daemon",
@@ -120,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_decode(sub)
     datacli.add_commands(sub)
     simulator.add_commands(sub)
+    status_cli.add_commands(sub)
+    doctor_cli.add_commands(sub)
     return parser
 
 

@@ -56,6 +56,7 @@ __all__ = [
     "LogSettings",
     "SerialSettings",
     "Settings",
+    "StatusSettings",
     "StoreSettings",
     "WinchSettings",
     "WinchSimSettings",
@@ -147,7 +148,7 @@ _Positive = Annotated[float, Field(gt=0)]
 _NonNegative = Annotated[float, Field(ge=0)]
 
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
-# the README's configuration reference; tests keep both in step with these models.
+# docs/configuration.md; tests keep both in step with these models.
 
 
 class SerialSettings(BaseModel):
@@ -263,6 +264,18 @@ class LogSettings(BaseModel):
     ] = "info"
 
 
+class StatusSettings(BaseModel):
+    """[status]: the read-only status socket `cc-daemon status` and `doctor` ask."""
+
+    model_config = _SECTION
+
+    enabled: bool = True
+    # None: $RUNTIME_DIRECTORY/status.sock under systemd, else no socket.
+    path: Annotated[Path | None, BeforeValidator(_empty_is_none)] = None
+    max_clients: Annotated[int, Field(ge=1, le=1024)] = 32
+    client_timeout_s: _Positive = 2.0
+
+
 class Settings(BaseSettings):
     """The whole configuration, frozen. Build it with `load_settings` to read sources."""
 
@@ -273,6 +286,7 @@ class Settings(BaseSettings):
     cast: CastSettings = CastSettings()
     store: StoreSettings = StoreSettings()
     log: LogSettings = LogSettings()
+    status: StatusSettings = StatusSettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
 

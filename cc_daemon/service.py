@@ -114,6 +114,8 @@ class DaemonStatus:
     winch_fault: str | None
     port_losses: int
     last_fix: Fix | None
+    winch: WinchStatus | None = None
+    stopping: bool = False
 
 
 class _ActiveCast:
@@ -206,6 +208,9 @@ class Daemon:
                 housekeeping = tasks.create_task(
                     self._keep_running("housekeeping", self._housekeeping), name="housekeeping"
                 )
+                status = tasks.create_task(
+                    self._keep_running("status", self._serve_status), name="status"
+                )
                 # Serving from here on; the port may come later (a late USB adapter).
                 self._notifier.notify("READY=1", f"STATUS=opening {self.link.port}")
                 await self._shutdown.wait()
@@ -213,6 +218,7 @@ class Daemon:
                 await self._finish_running_cast()
                 link_task.cancel()
                 housekeeping.cancel()
+                status.cancel()
         finally:
             await self._close()
         return self._exit_code
@@ -313,6 +319,11 @@ class Daemon:
                 _log.critical("background task crashed; restarting it", task=name, exc_info=True)
             await asyncio.sleep(1.0)
 
+    async def _serve_status(self) -> None:
+        from cc_daemon.status.server import serve_daemon_status
+
+        await serve_daemon_status(self, self._clock, self._started_at)
+
     async def _housekeeping(self) -> None:
         """Each second: rate-limited log summaries and the systemd watchdog; every
         10 s the corrupt-frame count (journal and log)."""
@@ -350,6 +361,8 @@ class Daemon:
             winch_fault=cast.machine.winch_fault if cast else None,
             port_losses=self.port_losses,
             last_fix=self.last_fix,
+            winch=self._winch_status() if self._winch is not None else None,
+            stopping=self._shutting_down,
         )
 
     @property

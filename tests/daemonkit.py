@@ -15,7 +15,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -76,12 +76,20 @@ class DaemonProcess:
         self.proc: subprocess.Popen[bytes] | None = None
         self.port: FramePort | None = None
 
-    def start(self, *args: str) -> None:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("CC_DAEMON_")}
-        env["PYTHONPATH"] = str(REPO)
+    def start(
+        self,
+        *args: str,
+        prefix: Sequence[str] = (),
+        env: Mapping[str, str] | None = None,
+    ) -> None:
+        """Start the daemon; `prefix` wraps the command (a sandbox), `env` adds variables."""
+        environ = {k: v for k, v in os.environ.items() if not k.startswith("CC_DAEMON_")}
+        environ["PYTHONPATH"] = str(REPO)
+        environ.update(env or {})
         with self.log_path.open("wb") as log:
             self.proc = subprocess.Popen(
                 [
+                    *prefix,
                     sys.executable,
                     "-m",
                     "cc_daemon",
@@ -96,7 +104,7 @@ class DaemonProcess:
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=subprocess.STDOUT,
-                env=env,
+                env=environ,
                 cwd=self.tmp,
             )
 

@@ -20,8 +20,8 @@ from cc_daemon.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE_TOML = ROOT / "config" / "cc-daemon.toml"
-# The README's configuration reference; repointed to README.md once merged there.
-CONFIG_REFERENCE = ROOT / "README.md"
+# The configuration reference (docs/configuration.md): its key table and examples.
+CONFIG_REFERENCE = ROOT / "docs" / "configuration.md"
 PREFIX = "cc-daemon: bad configuration: "
 RATES = "1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600"
 LEVELS = '"debug", "info", "warning", "error" or "critical"'
@@ -273,7 +273,7 @@ def test_unknown_section_and_subsection_in_file(tmp_path: Path) -> None:
         f"winch.gpio (from {config}): unknown key; "
         "allowed keys in [winch]: backend, max_line_m, sim",
         f"logging (from {config}): unknown section; "
-        "allowed sections: serial, winch, cast, store, log (did you mean log?)",
+        "allowed sections: serial, winch, cast, store, log, status (did you mean log?)",
     ]
 
 
@@ -282,7 +282,7 @@ def test_unknown_environment_variables_are_errors() -> None:
         f"serial.bogus (from CC_DAEMON_SERIAL__BOGUS): unknown key; allowed keys in [serial]: "
         f"{SERIAL_KEYS}",
         "port (from CC_DAEMON_PORT): unknown section; "
-        "allowed sections: serial, winch, cast, store, log",
+        "allowed sections: serial, winch, cast, store, log, status",
     ]
 
 

@@ -413,3 +413,21 @@ def test_a_row_sqlite_refuses_is_set_aside_and_the_rest_written(tmp_path: Path) 
     events = [e["event"] for e in logs if e["log_level"] == "error"]
     assert events.count("journal: SQLite refused a row; it is dropped") == 2
     assert "journal: end of a cast that is not in the file" in events
+
+
+def test_by_default_the_journal_asks_the_kernel_as_the_status_does(
+    tmp_path: Path, make_journal: MakeJournal, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import ctypes.util
+
+    from cc_daemon.status import clocksync
+
+    expected = clocksync.clock_sync().synchronised is True
+    # libc is found once per process, never again from the event loop.
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: pytest.fail("looked up again"))
+    db = tmp_path / "j.db"
+    journal = make_journal(db)
+    journal.open()
+    journal.record_fix(FIX)
+    journal.close()
+    assert query(db, "SELECT clock_synced FROM fixes") == [(int(expected),)]

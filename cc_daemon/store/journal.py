@@ -21,8 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cc_daemon import __version__, clocksync
+from cc_daemon import __version__
 from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.status.clocksync import clock_sync
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
 from cc_daemon.store.writer import BufferedWriter
@@ -143,6 +144,10 @@ class JournalHealth:
     writer_alive: bool = False  # the writer thread is running (restarted if it ever stops)
 
 
+def _kernel_says_synced() -> bool:
+    return clock_sync().synchronised is True
+
+
 def default_store_path() -> Path:
     """`$STATE_DIRECTORY/cc-daemon.db` under systemd, else `./cc-daemon.db`."""
     # systemd joins several StateDirectory= entries with ':'; the first is ours.
@@ -180,7 +185,7 @@ class Journal(BufferedWriter):
         *,
         monotonic: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
-        clock_synced: Callable[[], bool] = clocksync.clock_synced,
+        clock_synced: Callable[[], bool] | None = None,
         max_buffered_rows: int = 100_000,
         on_connect: Callable[[sqlite3.Connection], None] | None = None,
     ) -> None:
@@ -190,7 +195,9 @@ class Journal(BufferedWriter):
             path, wall=wall, max_buffered_rows=max_buffered_rows, on_connect=on_connect
         )
         self._monotonic = monotonic
-        self._clock_synced_now = clock_synced
+        # The same answer `cc-daemon status` gives: the kernel's (adjtimex), which
+        # every time daemon sets, else timesyncd's flag file.
+        self._clock_synced_now = clock_synced or _kernel_says_synced
         self._next_cast_id = 1  # guarded by _lock: the writer raises it past the file's
 
         # Loop-thread only.

@@ -1,0 +1,286 @@
+"""`cc-daemon doctor` against a fake Raspberry Pi root, healthy and with each failure planted.
+
+The root holds the files the checks read (passwd and group, the unit, the
+configuration, /dev links, /proc entries); the serial device is a real pty, the
+status socket a real server; the kernel's answers that cannot live in a
+directory (free space, clock, systemd's opinion) are injected.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import subprocess
+import sys
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from cc_daemon.doctor.checks import Check, run_checks
+from cc_daemon.doctor.cli import format_checks
+from cc_daemon.doctor.system import System
+from cc_daemon.sim.pty import PtyPair
+from cc_daemon.status.clocksync import ClockSync
+from cc_daemon.status.server import StatusServer
+from tests.daemonkit import REPO
+
+SERVICE_UID = 4242  # neither root nor the test: access is decided by groups and modes
+
+
+def statvfs(free_bytes: int) -> Callable[[str], os.statvfs_result]:
+    blocks = free_bytes // 4096
+    return lambda _path: os.statvfs_result(
+        (4096, 4096, blocks * 2, blocks, blocks, 0, 0, 0, 0, 255)
+    )
+
+
+@dataclass
+class Pi:
+    root: Path
+    pty: PtyPair
+    device: Path
+    system: System
+    server: StatusServer
+
+    def write(self, path: str, text: str) -> Path:
+        target = self.root / path.lstrip("/")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(text)
+        return target
+
+    def link(self, path: str, to: str | Path) -> None:
+        target = self.root / path.lstrip("/")
+        target.unlink(missing_ok=True)
+        target.symlink_to(to)
+
+    async def checks(self, config: Path | None = None) -> dict[str, Check]:
+        found = await asyncio.to_thread(run_checks, self.system, config)
+        return {c.name: c for c in found}
+
+
+def healthy_pi(tmp_path: Path) -> Pi:
+    root = tmp_path / "r"
+    pty = PtyPair(tmp_path / "tty")
+    device = Path(os.path.realpath(pty.path))
+    os.chmod(device, 0o660)
+    tty_gid, own_gid = device.stat().st_gid, os.getgid()
+    system = System(
+        root=root,
+        statvfs=statvfs(30 * 10**9),
+        clock=lambda: ClockSync(True, 0.012, "adjtimex"),
+        service_state=lambda: "active",
+    )
+    server = StatusServer(
+        root / "run/cc-daemon/status.sock",
+        lambda: {"link": {"up": True, "port": "/dev/serial0"}, "cast": {"phase": "idle"}},
+    )
+    box = Pi(root, pty, device, system, server)
+    box.write("/etc/passwd", f"cc-daemon:x:{SERVICE_UID}:{own_gid}::/var/lib/cc-daemon:/x\n")
+    box.write("/etc/group", f"cc-daemon:x:{own_gid}:\ndialout:x:{tty_gid}:\n")
+    unit = (REPO / "systemd/cc-daemon.service").read_text()
+    box.write("/etc/systemd/system/cc-daemon.service", unit)
+    box.write("/etc/cc-daemon/cc-daemon.toml", (REPO / "config/cc-daemon.toml").read_text())
+    box.write("/proc/cmdline", "console=tty1 root=PARTUUID=1234-02 rootwait\n")
+    box.write("/proc/device-tree/model", "Raspberry Pi 4 Model B Rev 1.4\0")
+    (root / "proc/1/fd").mkdir(parents=True)
+    (root / "dev").mkdir()
+    box.link("/dev/serial0", "ttyAMA0")
+    box.link("/dev/ttyAMA0", device)  # absolute and outside the root: the real pty
+    state = root / "var/lib/cc-daemon"
+    state.mkdir(parents=True)
+    state.chmod(0o770)
+    (root / "run/cc-daemon").mkdir(parents=True)
+    return box
+
+
+@pytest.fixture
+async def pi(tmp_path: Path) -> AsyncIterator[Pi]:
+    box = await asyncio.to_thread(healthy_pi, tmp_path)
+    await box.server.start()
+    try:
+        yield box
+    finally:
+        await box.server.close()
+        box.pty.close()
+
+
+async def test_a_healthy_pi_is_all_ok(pi: Pi) -> None:
+    checks = await pi.checks()
+    assert {n: c.level for n, c in checks.items()} == {
+        "config": "OK",
+        "service user": "OK",
+        "serial port": "OK",
+        "login console": "OK",
+        "port free": "OK",
+        "UART": "OK",
+        "journal": "OK",
+        "clock": "OK",
+        "service": "OK",
+        "status socket": "OK",
+    }, format_checks(list(checks.values()))
+    assert "PL011" in checks["UART"].detail
+    assert "answering: link UP on /dev/serial0" in checks["status socket"].detail
+
+
+def plant_bad_config(pi: Pi) -> None:
+    pi.write("/etc/cc-daemon/cc-daemon.toml", "[serial]\nbaudrate = 1234\n")
+
+
+def plant_no_user(pi: Pi) -> None:
+    pi.write("/etc/passwd", "root:x:0:0::/root:/bin/sh\n")
+
+
+def plant_no_port(pi: Pi) -> None:
+    (pi.root / "dev/ttyAMA0").unlink()
+
+
+def plant_not_a_tty(pi: Pi) -> None:
+    (pi.root / "dev/ttyAMA0").unlink()
+    pi.write("/dev/ttyAMA0", "")
+
+
+def plant_private_port(pi: Pi) -> None:
+    pi.device.chmod(0o600)
+
+
+def plant_kernel_console(pi: Pi) -> None:
+    pi.write("/proc/cmdline", "console=serial0,115200 console=tty1 root=PARTUUID=1234-02\n")
+
+
+def plant_getty(pi: Pi) -> None:
+    pi.write("/etc/systemd/system/getty.target.wants/serial-getty@ttyAMA0.service", "")
+
+
+def plant_holder(pi: Pi) -> None:
+    pi.write("/proc/777/cmdline", "minicom\0-D\0/dev/serial0\0")
+    (pi.root / "proc/777/fd").mkdir()
+    (pi.root / "proc/777/fd/3").symlink_to(pi.device)
+
+
+def plant_mini_uart(pi: Pi) -> None:
+    pi.link("/dev/serial0", "ttyS0")
+    pi.link("/dev/ttyS0", pi.device)
+
+
+def plant_gpio_without_devices(pi: Pi) -> None:
+    pi.write("/etc/cc-daemon/cc-daemon.toml", '[winch]\nbackend = "gpio"\n')
+
+
+def plant_readonly_journal(pi: Pi) -> None:
+    (pi.root / "var/lib/cc-daemon").chmod(0o750)  # the group may not write
+
+
+def plant_journal_outside(pi: Pi) -> None:
+    pi.write("/etc/cc-daemon/cc-daemon.toml", '[store]\npath = "/home/pi/survey.db"\n')
+
+
+def plant_full_disk(pi: Pi) -> None:
+    pi.system.statvfs = statvfs(3_000_000)
+
+
+def plant_small_disk(pi: Pi) -> None:
+    pi.system.statvfs = statvfs(20_000_000)
+
+
+def plant_unsynced_clock(pi: Pi) -> None:
+    pi.system.clock = lambda: ClockSync(False, 16.0, "adjtimex", "STA_UNSYNC")
+
+
+def plant_failed_service(pi: Pi) -> None:
+    pi.system.service_state = lambda: "failed"
+
+
+async def plant_silent_socket(pi: Pi) -> None:
+    await pi.server.close()
+
+
+@pytest.mark.parametrize(
+    ("plant", "name", "level", "words"),
+    [
+        (plant_bad_config, "config", "FAIL", "serial.baudrate = 1234"),
+        (plant_no_user, "service user", "FAIL", "no user cc-daemon"),
+        (plant_no_port, "serial port", "FAIL", "does not exist"),
+        (plant_not_a_tty, "serial port", "FAIL", "not a serial device"),
+        (plant_private_port, "serial port", "FAIL", "not readable and writable by cc-daemon"),
+        (plant_kernel_console, "login console", "FAIL", "kernel console is on /dev/serial0"),
+        (plant_getty, "login console", "FAIL", "a login prompt runs"),
+        (plant_holder, "port free", "FAIL", "held by minicom -D /dev/serial0 (pid 777)"),
+        (plant_mini_uart, "UART", "WARN", "mini-UART (ttyS0)"),
+        (plant_gpio_without_devices, "GPIO", "FAIL", "no /dev/gpiochip*"),
+        (plant_readonly_journal, "journal", "FAIL", "not writable by cc-daemon"),
+        (plant_journal_outside, "journal", "FAIL", "outside /var/lib/cc-daemon"),
+        (plant_full_disk, "journal", "FAIL", "a day needs 7 MB"),
+        (plant_small_disk, "journal", "WARN", "about 3 days"),
+        (plant_unsynced_clock, "clock", "WARN", "not synchronised"),
+        (plant_failed_service, "service", "FAIL", "has failed"),
+        (plant_silent_socket, "status socket", "FAIL", "no status socket at"),
+    ],
+)
+async def test_each_planted_failure_is_found_with_a_fix(
+    pi: Pi, plant: Callable[[Pi], object], name: str, level: str, words: str
+) -> None:
+    planted = plant(pi)
+    if asyncio.iscoroutine(planted):
+        await planted
+    checks = await pi.checks()
+    assert (checks[name].level, words in checks[name].detail) == (level, True), checks[name]
+    assert checks[name].fix
+    others = {n: c.level for n, c in checks.items() if n != name and c.level != "OK"}
+    if plant is plant_gpio_without_devices:
+        assert others == {"SPI": "FAIL"}
+    else:
+        assert others == {}, others
+
+
+async def test_the_running_daemon_holding_the_port_is_fine(pi: Pi) -> None:
+    pi.write(
+        "/proc/555/cmdline", "/opt/cc-daemon/.venv/bin/python\0/opt/cc-daemon/.venv/bin/cc-daemon\0"
+    )
+    (pi.root / "proc/555/fd").mkdir()
+    (pi.root / "proc/555/fd/5").symlink_to(pi.device)
+    checks = await pi.checks()
+    assert checks["port free"].detail.endswith("held by the running cc-daemon only")
+
+
+async def test_the_command_exits_1_on_a_fail_and_prints_the_fix(pi: Pi) -> None:
+    plant_kernel_console(pi)
+    result = await asyncio.to_thread(
+        subprocess.run,
+        [sys.executable, "-m", "cc_daemon", "doctor", "--root", str(pi.root)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        timeout=30,
+    )
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "FAIL  login console" in result.stdout
+    assert "fix: sudo raspi-config nonint do_serial_cons 1" in result.stdout
+    # Under --root systemd is not asked; the socket in the root still is.
+    assert "WARN  service" in result.stdout and "OK    status socket" in result.stdout
+    as_json = await asyncio.to_thread(
+        subprocess.run,
+        [sys.executable, "-m", "cc_daemon", "doctor", "--root", str(pi.root), "--json"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        timeout=30,
+    )
+    checks = {c["name"]: c for c in json.loads(as_json.stdout)}
+    assert as_json.returncode == 1 and checks["login console"]["level"] == "FAIL"
+    assert set(checks["config"]) == {"name", "level", "detail", "fix"}
+
+
+async def test_an_unreadable_configuration_says_how_to_read_it(
+    pi: Pi, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Root reads everything, so an operator outside the group is played by os.access.
+    config = pi.root / "etc/cc-daemon/cc-daemon.toml"
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: Path(p) != config and real_access(p, m))
+    checks = await pi.checks()
+    assert list(checks) == ["config"]
+    assert checks["config"].level == "FAIL" and "not readable by you" in checks["config"].detail
+    assert "usermod -aG cc-daemon" in checks["config"].fix

@@ -1,0 +1,131 @@
+"""The systemd unit: least privilege measured by systemd-analyze, and its stop budget.
+
+`systemd-analyze security --offline=yes` and `systemd-analyze verify` read the
+unit file alone, so they run without systemd as PID 1 (a container, CI). Where
+the tool is missing the checks are skipped with the reason; CI installs it
+(`.ci/run`).
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from tests.daemonkit import REPO
+
+UNIT = REPO / "systemd" / "cc-daemon.service"
+MAX_EXPOSURE = 2.0
+ANALYZE = shutil.which("systemd-analyze")
+needs_analyze = pytest.mark.skipif(
+    ANALYZE is None,
+    reason="systemd-analyze not installed (apt-get install systemd): unit hardening not checked",
+)
+
+
+def unit_settings(text: str) -> dict[str, list[str]]:
+    """Every `Key=value` of the unit, in order (a key may repeat)."""
+    out: dict[str, list[str]] = {}
+    for raw in text.splitlines():
+        line = raw.strip()
+        if line and not line.startswith(("#", ";", "[")) and "=" in line:
+            key, value = line.split("=", 1)
+            out.setdefault(key.strip(), []).append(value.strip())
+    return out
+
+
+def exposure(unit: Path) -> float:
+    assert ANALYZE is not None
+    result = subprocess.run(
+        [ANALYZE, "security", "--offline=yes", "--no-pager", str(unit)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    found = re.search(r"Overall exposure level for \S+: (\d+\.\d+)", result.stdout)
+    assert found, result.stdout + result.stderr
+    return float(found[1])
+
+
+@needs_analyze
+def test_exposure_is_at_most_two() -> None:
+    assert exposure(UNIT) <= MAX_EXPOSURE
+
+
+@needs_analyze
+def test_the_measure_would_catch_a_weakened_unit(tmp_path: Path) -> None:
+    # Without the sandboxing lines the same measure must fail the check.
+    weak = tmp_path / "cc-daemon.service"
+    kept = [
+        line
+        for line in UNIT.read_text().splitlines()
+        if not line.startswith(("Protect", "Restrict", "SystemCall", "Capability", "Private"))
+    ]
+    weak.write_text("\n".join(kept) + "\n")
+    assert exposure(weak) > MAX_EXPOSURE
+
+
+@needs_analyze
+def test_verify_is_clean(tmp_path: Path) -> None:
+    # verify also insists that ExecStart= exists; the installed venv is not on this
+    # machine, so point it at this checkout's own entry point and check the rest.
+    entry = Path(sys.executable).with_name("cc-daemon")
+    assert entry.exists(), entry
+    text = UNIT.read_text().replace("/opt/cc-daemon/.venv/bin/cc-daemon", str(entry))
+    assert str(entry) in text
+    copy = tmp_path / "cc-daemon.service"
+    copy.write_text(text)
+    result = subprocess.run(
+        [ANALYZE, "verify", str(copy)], capture_output=True, text=True, check=False
+    )
+    assert (result.returncode, result.stdout + result.stderr) == (0, "")
+
+
+def test_everything_the_issue_asks_for_is_set() -> None:
+    s = unit_settings(UNIT.read_text())
+    expected = {
+        "User": "cc-daemon",
+        "PrivateNetwork": "yes",
+        "RestrictAddressFamilies": "AF_UNIX",
+        "CapabilityBoundingSet": "",
+        "AmbientCapabilities": "",
+        "SystemCallArchitectures": "native",
+        "DevicePolicy": "closed",
+        "ProtectProc": "invisible",
+        "ProcSubset": "pid",
+        "UMask": "0027",
+        "KillMode": "mixed",
+        "Restart": "on-failure",
+        "RestartPreventExitStatus": "2",
+        "ExecReload": "/bin/kill -HUP $MAINPID",
+        "StateDirectory": "cc-daemon",
+        "RuntimeDirectory": "cc-daemon",
+        "ConfigurationDirectory": "cc-daemon",
+    }
+    assert {k: s.get(k, ["<missing>"])[-1] for k in expected} == expected
+    assert set(s["SupplementaryGroups"][-1].split()) == {"dialout", "gpio", "spi"}
+    assert s["SystemCallFilter"] == ["@system-service", "~@privileged @resources"]
+    allowed = {v.split()[0] for v in s["DeviceAllow"]}
+    devices = ("ttyS", "ttyAMA", "ttyUSB", "ttyACM", "gpiochip", "spi")
+    assert allowed == {f"char-{n}" for n in devices}
+    for key in ("Kernel" + k for k in ("Tunables", "Modules", "Logs")):
+        assert s[f"Protect{key}"] == ["yes"]
+    # Wants= without After= would not order the start after the clock is synchronised.
+    assert "time-sync.target" in s["Wants"] and "time-sync.target" in s["After"]
+    assert s["StartLimitBurst"] and s["StartLimitIntervalSec"]
+
+
+def test_stop_budget_brings_the_probe_home_from_the_end_of_the_line() -> None:
+    """TimeoutStopSec= covers a haul from winch.max_line_m at the shipped haul speed."""
+    config = tomllib.loads((REPO / "config" / "cc-daemon.toml").read_text())
+    winch = config["winch"]
+    backend = winch.get(winch.get("backend", "sim"), {})
+    speed = backend.get("speed_m_s", winch["sim"]["speed_m_s"])
+    haul_s = winch["max_line_m"] / speed
+    budget = float(unit_settings(UNIT.read_text())["TimeoutStopSec"][-1])
+    assert budget >= haul_s + 30  # + stopping a descent, journal and close
