@@ -4,12 +4,14 @@
     cc-daemon --simulate [...]               a whole survey against a simulated autopilot
     cc-daemon decode ...                     read frames: hex, a capture on stdin, a live port
     cc-daemon casts | export | plot          the survey journal
+    cc-daemon snapshot DEST                  a consistent copy of the journal, even while running
     cc-daemon simulate-autopilot --port P    the simulated autopilot alone, on a real port
     cc-daemon status [--json|--watch]        ask the running daemon what it is doing
     cc-daemon doctor                         check this Pi is ready to run the service
 
-Exit status: 0 success; 1 a tool found problems (corrupt frames, a failed
-survey); 2 bad usage or configuration (nothing was opened); 130 the daemon was
+Exit status: 0 success; 1 a tool found problems (corrupt frames, a protocol
+violation); 2 bad usage or configuration (nothing was opened); 3 a simulated
+survey kept the protocol but left a station unmeasured; 130 the daemon was
 stopped at once by a second Ctrl-C and the probe may be down.
 """
 
