@@ -255,6 +255,8 @@ async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_
     assert depth > 0.1
     assert "SURVEY INCOMPLETE: 0 of 1 castable station measured" in text
     assert text.endswith("(exit status 130)\n")
+    # The counts say it too: a cast left unfinished, the probe still down.
+    assert f"0 skipped, 1 unfinished; the probe left {depth:.2f} m down" in text
 
 
 async def test_a_probe_that_cannot_come_home_gets_no_r_f_and_fails_the_run(
