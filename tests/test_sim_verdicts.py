@@ -177,3 +177,12 @@ def test_next_steps_are_runnable_as_printed(tmp_path: Path) -> None:
     elsewhere = next_steps(Path("/data/a b.db"), None, argv0=str(venv_program), cwd=tmp_path)
     assert elsewhere[0] == ".venv/bin/cc-daemon casts --db '/data/a b.db'"
     assert not any(step.startswith("make") for step in elsewhere)
+
+
+def test_the_headline_counts_stations_in_english() -> None:
+    assert _headline(SimOptions(stations=1), make_mission(1, 1)).startswith(
+        "cc-daemon --simulate: 1 station, seed 1, fast pace, "
+    )
+    assert _headline(SimOptions(), make_mission(3, 1)).startswith(
+        "cc-daemon --simulate: 3 stations, seed 1, "
+    )

@@ -65,7 +65,7 @@ def _headline(options: SimOptions, mission: Mission) -> str:
     ]
     noise = " ".join(e for e in extras if e)
     head = (
-        f"cc-daemon --simulate: {len(mission.stations)} stations, seed {mission.seed}, "
+        f"cc-daemon --simulate: {_stations(len(mission.stations))}, seed {mission.seed}, "
         f"{pace.name} pace, {mission.total_distance_m:.0f} m of transits"
         + (f"  [{noise}]" if noise else "")
     )
@@ -82,6 +82,10 @@ def _headline(options: SimOptions, mission: Mission) -> str:
             "your winch and cast settings as configured"
         )
     return head
+
+
+def _stations(count: int) -> str:
+    return "1 station" if count == 1 else f"{count} stations"
 
 
 @contextlib.contextmanager
