@@ -272,7 +272,7 @@ async def run_autopilot(options: AutopilotOnlyOptions) -> int:
     console.start(
         mission,
         f"cc-daemon simulate-autopilot on {options.port} at {options.baudrate} baud: "
-        f"{len(mission.stations)} stations, seed {mission.seed}",
+        f"{_stations(len(mission.stations))}, seed {mission.seed}",
     )
     try:
         with _signals(run, options.handle_signals):
