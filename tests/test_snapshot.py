@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sqlite3
 import subprocess
 import sys
@@ -68,9 +69,17 @@ class Recorder:
 def recording(tmp_path: Path) -> Iterator[tuple[Path, Recorder]]:
     db = tmp_path / "cc-daemon.db"
     with Recorder(db) as recorder:
-        while recorder.casts < 3:  # some of it committed before the first copy
+        while committed_casts(db) < 3:  # some of it in the file before the first copy
             recorder.stop.wait(0.01)
         yield db, recorder
+
+
+def committed_casts(db: Path) -> int:
+    with contextlib.closing(sqlite3.connect(f"{db.as_uri()}?mode=ro", uri=True)) as conn:
+        try:
+            return int(conn.execute("SELECT count(*) FROM casts").fetchone()[0])
+        except sqlite3.OperationalError:  # the writer has not made the tables yet
+            return 0
 
 
 def check_copy(report: SnapshotReport) -> None:
@@ -99,7 +108,7 @@ def test_snapshots_of_a_journal_being_written_are_consistent(
     reports = [take_snapshot(db, tmp_path / f"copy-{n}.db") for n in range(4)]
     for report in reports:
         check_copy(report)
-        assert report.casts >= 3 and report.samples >= 20 * 3
+        assert report.casts >= 3 and report.samples >= 20 * 2  # the third may be under way
         assert report.first_wall_s is not None and report.last_wall_s is not None
         assert report.first_wall_s <= report.last_wall_s
     # Later copies hold at least as much: each is one moment of a growing file.
