@@ -12,7 +12,7 @@ EXTRAS_STAMP := $(VENV)/.installed-extras
 # The journal `make export` and `make plot` read: the simulator's, by default.
 DB ?= simulate.db
 
-.PHONY: test lint typecheck pytest simulate extras export plot bench clean install uninstall
+.PHONY: unit-tools test lint typecheck pytest simulate extras export plot bench clean install uninstall
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "cc-daemon needs Python >= 3.11; set PYTHON=python3.11")'
@@ -44,7 +44,15 @@ lint: $(TEST_STAMP)
 typecheck: $(TEST_STAMP)
 	$(BIN)/mypy
 
-pytest: $(TEST_STAMP)
+# The unit's hardening is checked with systemd-analyze (tests/test_unit_hardening.py).
+# Where it is missing, install Debian's systemd package if we can (root, apt); else
+# those tests skip and say why.
+unit-tools:
+	@command -v systemd-analyze >/dev/null || { [ "$$(id -u)" -eq 0 ] && command -v apt-get >/dev/null && \
+		{ apt-get update -qq && apt-get install -y -qq --no-install-recommends systemd >/dev/null; } ; } || \
+		echo "make: systemd-analyze not available and cannot be installed: the unit's checks will be skipped" >&2
+
+pytest: $(TEST_STAMP) unit-tools
 	$(BIN)/pytest -n 2 $(PYTEST_ARGS)
 
 simulate: $(EXTRAS_STAMP)

@@ -44,6 +44,7 @@ from cc_daemon.protocol import (
     Telemetry,
     encode,
 )
+from cc_daemon.sonar.ping import PING1D_TABLE
 
 N_FRAMES = 200_000
 SEED = 20_240_601
@@ -250,7 +251,8 @@ def build_ping_stream(n: int, seed: int) -> tuple[bytes, str]:
     rng = random.Random(seed)
 
     def message(msg_id: int, **fields: int) -> bytes:
-        msg = PingMessage(msg_id)
+        # brping's default table takes 1211 for the S500's altitude: the Ping1D's own, always.
+        msg = PingMessage(msg_id, payload_dict=PING1D_TABLE)
         msg.src_device_id = 1
         msg.dst_device_id = 0
         for name, value in fields.items():
@@ -275,7 +277,7 @@ def build_ping_stream(n: int, seed: int) -> tuple[bytes, str]:
 
 
 def ping_chunks() -> tuple[Callable[[bytes], object], Callable[[], int]]:
-    parser = PingParser()
+    parser = PingParser(payload_dict=PING1D_TABLE)
     parse_byte = parser.parse_byte
 
     def feed(chunk: bytes) -> None:
@@ -287,7 +289,7 @@ def ping_chunks() -> tuple[Callable[[bytes], object], Callable[[], int]]:
 
 
 def ping_bytes() -> tuple[Callable[[int], object], Callable[[], int]]:
-    parser = PingParser()
+    parser = PingParser(payload_dict=PING1D_TABLE)
     return parser.parse_byte, lambda: parser.parsed
 
 

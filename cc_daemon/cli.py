@@ -5,9 +5,13 @@
     cc-daemon decode ...                     read frames: hex, a capture on stdin, a live port
     cc-daemon casts | export | plot          the survey journal
     cc-daemon snapshot DEST                  a consistent copy of the journal, even while running
+    cc-daemon sonde export | plot            the sonde's readings and profiles
     cc-daemon simulate-autopilot --port P    the simulated autopilot alone, on a real port
     cc-daemon status [--json|--watch]        ask the running daemon what it is doing
     cc-daemon doctor                         check this Pi is ready to run the service
+    cc-daemon simulate-sonde --port PATH     the simulated sonde alone, on a pty at PATH
+    cc-daemon winch status|home|down|up      the GPIO winch by hand (jog, home, calibrate)
+    cc-daemon simulate-sonar --port P        the simulated Ping1D echosounder alone
 
 Exit status: 0 success; 1 a tool found problems (corrupt frames, a protocol
 violation); 2 bad usage or configuration (nothing was opened); 3 a simulated
@@ -33,7 +37,7 @@ from cc_daemon.decode import (
     print_events,
     read_stdin_chunks,
 )
-from cc_daemon.errors import ConfigError
+from cc_daemon.errors import ConfigError, WinchFault
 
 EXIT_USAGE = 2
 
@@ -83,7 +87,12 @@ def _add_daemon_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--config", type=Path, help="TOML configuration file")
     group.add_argument("--port", help="serial port to the autopilot [serial.port]")
     group.add_argument("--baudrate", type=int, help="[serial.baudrate]")
-    group.add_argument("--winch", choices=["sim", "gpio"], help="winch backend [winch.backend]")
+    group.add_argument(
+        "--winch",
+        choices=["sim", "gpio", "gpio-mock"],
+        help="winch backend [winch.backend]; gpio-mock: the GPIO winch on mock pins "
+        '[winch.gpio.pin_factory = "mock"]',
+    )
     group.add_argument("--db", type=Path, help="survey journal file [store.path]")
     group.add_argument("--log-format", choices=["console", "json"], help="[log.format]")
     group.add_argument(
@@ -95,18 +104,23 @@ def _add_daemon_options(parser: argparse.ArgumentParser) -> None:
 
 def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The daemon flags as a nested settings dict (unset flags left out)."""
+    winch: dict[str, Any] = {"backend": args.winch}
+    if args.winch == "gpio-mock":  # one flag for two keys: the GPIO winch on mock pins
+        winch = {"backend": "gpio", "gpio": {"pin_factory": "mock"}}
     return {
         "serial": {"port": args.port, "baudrate": args.baudrate},
-        "winch": {"backend": args.winch},
+        "winch": winch,
         "store": {"path": args.db},
         "log": {"format": args.log_format, "level": args.log_level},
     }
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from cc_daemon import datacli
+    from cc_daemon import datacli, sondecli, winchcli
     from cc_daemon.doctor import cli as doctor_cli
     from cc_daemon.sim import commands as simulator
+    from cc_daemon.sim import sonar_cli
+    from cc_daemon.sim import sondecli as simulate_sonde
     from cc_daemon.status import cli as status_cli
 
     parser = argparse.ArgumentParser(
@@ -128,6 +142,10 @@ def build_parser() -> argparse.ArgumentParser:
     simulator.add_commands(sub)
     status_cli.add_commands(sub)
     doctor_cli.add_commands(sub)
+    sondecli.add_command(sub)
+    simulate_sonde.add_command(sub)
+    winchcli.add_command(sub)
+    sonar_cli.add_commands(sub)
     return parser
 
 
@@ -139,27 +157,15 @@ def _load(args: argparse.Namespace) -> Any:
 
 def _run_daemon(args: argparse.Namespace) -> int:
     from cc_daemon.logsetup import configure_logging, resolve_format
-    from cc_daemon.service import Daemon, make_winch
+    from cc_daemon.service import Daemon
+    from cc_daemon.simgate import check_backend_allowed
 
     settings = _load(args)
     # "auto" follows stdout: a terminal gets the console renderer, journald
     # (or a pipe, or a file) gets JSON lines. The log itself goes to stderr.
     configure_logging(resolve_format(settings.log.format, sys.stdout), settings.log.level)
-    make_winch(settings, clock=_NullClock())  # refuse an unusable backend before opening anything
+    check_backend_allowed(settings)  # a simulated winch not asked for: exit 2, nothing opened
     return asyncio.run(_serve(Daemon(settings)))
-
-
-class _NullClock:
-    """Only for validating the winch choice; never asked the time."""
-
-    def monotonic(self) -> float:
-        return 0.0
-
-    def wall(self) -> float:
-        return 0.0
-
-    async def sleep_until(self, deadline: float) -> None:
-        return None
 
 
 async def _serve(daemon: Any) -> int:
@@ -204,5 +210,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(str(exc), file=sys.stderr)
         return EXIT_USAGE
+    except WinchFault as exc:  # the winch's pins cannot be opened: nothing to drive
+        print(f"cc-daemon: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130

@@ -45,6 +45,7 @@ from pydantic_settings import (
 )
 
 from cc_daemon.errors import ConfigError
+from cc_daemon.sonde.settings import SondeSettings
 
 __all__ = [
     "DEFAULT_SEARCH_PATHS",
@@ -56,8 +57,10 @@ __all__ = [
     "LogSettings",
     "SerialSettings",
     "Settings",
+    "SonarSettings",
     "StatusSettings",
     "StoreSettings",
+    "WinchGpioSettings",
     "WinchSettings",
     "WinchSimSettings",
     "load_settings",
@@ -75,6 +78,7 @@ FLAG_NAMES: Mapping[tuple[str, ...], str] = {
     ("serial", "port"): "--port",
     ("serial", "baudrate"): "--baudrate",
     ("winch", "backend"): "--winch",
+    ("winch", "gpio", "pin_factory"): "--winch",
     ("store", "path"): "--db",
     ("log", "format"): "--log-format",
     ("log", "level"): "--log-level",
@@ -184,6 +188,117 @@ class WinchSimSettings(BaseModel):
     speed_m_s: _Positive = 0.25
     stall_at_m: Annotated[_Positive | None, BeforeValidator(_empty_is_none)] = None
     fail_home: bool = False
+    # Outside --simulate a simulated winch would answer a real autopilot for a probe
+    # that never moves: it runs only when this says so in so many words.
+    allow_outside_simulation: bool = False
+
+
+_Bcm = Annotated[int, Field(ge=0, le=27)]
+_Duty = Annotated[float, Field(gt=0, le=1)]
+_Pull = Literal["none", "up", "down"]
+_Level = Literal["high", "low"]
+
+
+class WinchGpioSettings(BaseModel):
+    """[winch.gpio]: the real winch on the Pi's GPIO (BCM numbers); defaults from the
+    group's previous controller where it had one (docs/gpio-winch.md says which)."""
+
+    model_config = _SECTION
+
+    pin_factory: Literal["native", "mock"] = "native"
+    payout_pin: _Bcm = 5
+    haulin_pin: _Bcm = 0
+    enable_pin: _Bcm = 13
+    pwm_frequency_hz: Annotated[float, Field(gt=0, le=100_000)] = 1000.0
+    payout_duty: _Duty = 0.9
+    haulin_duty: _Duty = 0.9
+    ramp_s: _NonNegative = 0.2
+    approach_m: _NonNegative = 0.1
+    switch_pin: _Bcm = 17
+    switch_pull: _Pull = "none"
+    switch_active: _Level = "high"
+    switch_debounce_s: Annotated[float, Field(ge=0, le=1)] = 0.002
+    counter: Literal["pulse", "quadrature"] = "pulse"
+    pulse_pin: _Bcm = 27
+    encoder_b_pin: _Bcm = 22
+    pulse_pull: _Pull = "none"
+    pulse_debounce_s: Annotated[float, Field(ge=0, le=1)] = 0.002
+    pulses_per_rev: Annotated[int, Field(ge=1)] = 2
+    drum_diameter_m: _Positive = 0.09
+    line_speed_m_s: _Positive = 0.25
+    stall_timeout_s: _Positive = 2.0
+    home_margin_s: _NonNegative = 10.0
+    count_tolerance_m: _Positive = 0.5
+    home_at_start: bool = True
+    loop_watchdog_s: Annotated[float, Field(ge=0.05, le=60)] = 1.0
+    adc: bool = False
+    adc_spi_device: Annotated[int, Field(ge=0, le=1)] = 0
+    voltage_channel: Annotated[int, Field(ge=0, le=7)] = 0
+    current_channel: Annotated[int, Field(ge=0, le=7)] = 1
+    adc_vref_v: _Positive = 3.3
+    current_zero_v: _NonNegative = 2.5
+    current_v_per_a: _Positive = 0.185
+    divider_r1_ohm: _Positive = 29400.0
+    divider_r2_ohm: _Positive = 7400.0
+    max_current_a: _Positive = 4.0
+    overcurrent_s: _Positive = 0.5
+
+    def pins(self) -> dict[str, int]:
+        """Every GPIO this configuration claims, by key (SPI0 too when the ADC is on)."""
+        used = {
+            "payout_pin": self.payout_pin,
+            "haulin_pin": self.haulin_pin,
+            "enable_pin": self.enable_pin,
+            "switch_pin": self.switch_pin,
+            "pulse_pin": self.pulse_pin,
+        }
+        if self.counter == "quadrature":
+            used["encoder_b_pin"] = self.encoder_b_pin
+        return used
+
+    @model_validator(mode="after")
+    def _check(self) -> WinchGpioSettings:
+        # A pull resistor fixes which level is "open": a switch can only pull the other way.
+        if (self.switch_pull, self.switch_active) in (("up", "high"), ("down", "low")):
+            raise _impossible(
+                '{0} = "'
+                + self.switch_pull
+                + '" needs {1} = "'
+                + ("low" if self.switch_pull == "up" else "high")
+                + '" (the pull holds the open switch at the other level)',
+                "switch_pull",
+                "switch_active",
+            )
+        seen: dict[int, str] = {}
+        for key, pin in self.pins().items():
+            if pin in seen:
+                raise _impossible(
+                    "{0} and {1} must be different pins (one GPIO cannot do both)", seen[pin], key
+                )
+            seen[pin] = key
+        if self.adc:
+            # SPI0: MOSI 10, MISO 9, SCLK 11, CE0 8 / CE1 7.
+            spi = {10: "MOSI", 9: "MISO", 11: "SCLK", 8 - self.adc_spi_device: "CE"}
+            for pin, key in seen.items():
+                if pin in spi:
+                    raise _impossible(
+                        "{0} must not be an SPI0 pin (" + spi[pin] + ") when {1} is true",
+                        key,
+                        "adc",
+                    )
+            if self.voltage_channel == self.current_channel:
+                raise _impossible(
+                    "{0} and {1} must be different ADC channels",
+                    "voltage_channel",
+                    "current_channel",
+                )
+            if self.current_zero_v >= self.adc_vref_v:
+                raise _impossible(
+                    "{0} must be below {1} (the ADC could not read the zero)",
+                    "current_zero_v",
+                    "adc_vref_v",
+                )
+        return self
 
 
 class WinchSettings(BaseModel):
@@ -194,6 +309,7 @@ class WinchSettings(BaseModel):
     backend: Literal["sim", "gpio"] = "sim"
     max_line_m: _Positive = 20.0
     sim: WinchSimSettings = WinchSimSettings()
+    gpio: WinchGpioSettings = WinchGpioSettings()
 
     @model_validator(mode="after")
     def _check(self) -> WinchSettings:
@@ -225,6 +341,7 @@ class CastSettings(BaseModel):
     max_duration_s: _Positive = 600.0
     rearm_s: _NonNegative = 120.0
     rearm_distance_m: _NonNegative = 10.0
+    depth_source: Literal["winch", "sonde"] = "winch"
 
     @model_validator(mode="after")
     def _check(self) -> CastSettings:
@@ -276,6 +393,30 @@ class StatusSettings(BaseModel):
     client_timeout_s: _Positive = 2.0
 
 
+class SonarSettings(BaseModel):
+    """[sonar]: a Ping1D echosounder wired to the companion computer (off without a port)."""
+
+    model_config = _SECTION
+
+    # None (or empty): no sonar on this computer; the autopilot's frames are the only source.
+    port: Annotated[str | None, BeforeValidator(_empty_is_none)] = None
+    baudrate: Annotated[int, AfterValidator(_check_baudrate)] = 115200
+    max_age_s: _Positive = 1.0
+    restart_after_s: _Positive = 3.0
+    reconnect_initial_s: _Positive = 0.2
+    reconnect_max_s: _Positive = 5.0
+
+    @model_validator(mode="after")
+    def _check(self) -> SonarSettings:
+        if self.reconnect_max_s < self.reconnect_initial_s:
+            raise _impossible(
+                "{0} must be at least {1} (the reopen delay grows from the first to the second)",
+                "reconnect_max_s",
+                "reconnect_initial_s",
+            )
+        return self
+
+
 class Settings(BaseSettings):
     """The whole configuration, frozen. Build it with `load_settings` to read sources."""
 
@@ -287,6 +428,8 @@ class Settings(BaseSettings):
     store: StoreSettings = StoreSettings()
     log: LogSettings = LogSettings()
     status: StatusSettings = StatusSettings()
+    sonde: SondeSettings = SondeSettings()
+    sonar: SonarSettings = SonarSettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
 
@@ -322,6 +465,18 @@ class Settings(BaseSettings):
                 "{0} must not be deeper than {1} (the probe cannot go below the line's end)",
                 "cast.target_depth_m",
                 "winch.max_line_m",
+            )
+        if self.cast.depth_source == "sonde" and self.sonde.backend == "none":
+            raise _impossible(
+                "{0} needs a sonde: set {1} (the R-M depth would come from nowhere)",
+                "cast.depth_source",
+                "sonde.backend",
+            )
+        if self.sonar.port is not None and self.sonar.port == self.serial.port:
+            raise _impossible(
+                "{0} must not be {1} (the sonar and the autopilot need a port each)",
+                "sonar.port",
+                "serial.port",
             )
         return self
 
@@ -524,6 +679,9 @@ def _source(key: _Key, origins: Mapping[_Key, _Origin]) -> str:
 
 def _lookup(data: Any, key: _Key) -> Any:
     for part in key:
+        if isinstance(data, list | tuple) and part.isdigit() and int(part) < len(data):
+            data = data[int(part)]  # an array of tables: [[sonde.parameters]]
+            continue
         if not isinstance(data, Mapping) or part not in data:
             return _MISSING
         data = data[part]

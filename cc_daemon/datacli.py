@@ -308,8 +308,13 @@ def _export(args: argparse.Namespace) -> int:
             else:
                 with _output(args.output, newline="") as out:
                     if what == "samples":
+                        from cc_daemon.export.provenance import of_casts
+
+                        made_by = of_casts(reader.casts(cast_id=args.cast, since=args.since))
                         count = csv.write_samples(
-                            reader.samples(cast_id=args.cast, since=args.since), out
+                            reader.samples(cast_id=args.cast, since=args.since),
+                            out,
+                            provenance=made_by.comment(),
                         )
                     elif what == "telemetry":
                         count = csv.write_fixes(

@@ -40,7 +40,6 @@ from cc_daemon.cast.stations import StationMemory
 from cc_daemon.cast.timestamps import AutopilotTime
 from cc_daemon.clock import Clock, SystemClock
 from cc_daemon.config import Settings
-from cc_daemon.errors import ConfigError
 from cc_daemon.link import SerialLink
 from cc_daemon.logsetup import flush_rate_limited
 from cc_daemon.protocol import (
@@ -57,11 +56,13 @@ from cc_daemon.protocol import (
     encode,
 )
 from cc_daemon.protocol.messages import CcMessage, DepthReport
+from cc_daemon.simgate import backend_name, is_simulated, simulation_warning
+from cc_daemon.sonar.onboard import OnboardSonar
+from cc_daemon.sonde.duty import SondeDuty, make_sonde
 from cc_daemon.store import Journal, default_store_path
 from cc_daemon.systemd import SystemdNotifier
 from cc_daemon.winch.base import Winch, WinchStatus
-from cc_daemon.winch.physics import LinePhysics
-from cc_daemon.winch.simulated import SimulatedWinch
+from cc_daemon.winch.factory import make_winch, prepare_winch
 
 _log = structlog.get_logger("cc_daemon.service")
 
@@ -70,23 +71,6 @@ SHUTDOWN_EXTEND_S = 30.0  # each EXTEND_TIMEOUT_USEC asks systemd for this much 
 CORRUPT_SUMMARY_EVERY = 10  # ticks
 EXIT_OK = 0
 EXIT_PROBE_MAY_BE_DOWN = 130
-
-
-def make_winch(settings: Settings, clock: Clock) -> Winch:
-    """The configured winch backend (validated before any hardware is touched)."""
-    winch = settings.winch
-    if winch.backend == "sim":
-        physics = LinePhysics(
-            speed_m_s=winch.sim.speed_m_s,
-            max_line_m=winch.max_line_m,
-            stall_at_m=winch.sim.stall_at_m,
-            fail_home=winch.sim.fail_home,
-        )
-        return SimulatedWinch(physics, clock)
-    raise ConfigError(
-        f"cc-daemon: bad configuration: winch.backend = {winch.backend!r}: the GPIO backend "
-        "is not part of this build yet; allowed: 'sim'"
-    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,12 +123,17 @@ class Daemon:
         winch: Winch | None = None,
         journal: Journal | None = None,
         notifier: SystemdNotifier | None = None,
+        simulation: bool = False,
     ) -> None:
+        """`simulation`: run by `--simulate` (a simulated winch is expected, not announced)."""
         self.settings = settings
         self._clock = clock or SystemClock()
         self._winch = winch
         self._journal = journal
         self._notifier = notifier or SystemdNotifier.from_environment()
+        self._simulated_note = None if simulation else simulation_warning(settings)
+        if self._simulated_note:
+            self._notifier.status_prefix = self._simulated_note + " | "
         self.ready = asyncio.Event()
         self._shutdown = asyncio.Event()
         self._shutting_down = False
@@ -168,6 +157,7 @@ class Daemon:
             reconnect_initial_s=serial_settings.reconnect_initial_s,
             reconnect_max_s=serial_settings.reconnect_max_s,
         )
+        self.sonar = OnboardSonar.from_settings(settings.sonar, self._clock, lambda: self._journal)
         self._cast: _ActiveCast | None = None
         self._tasks: asyncio.TaskGroup | None = None
         self.last_fix: Fix | None = None
@@ -179,19 +169,30 @@ class Daemon:
         self.port_losses = 0
         self._corrupt_reported = 0
         self._last_depth_m = 0.0
+        self._sonde: SondeDuty | None = None
 
     # ------------------------------------------------------------ lifecycle
 
     async def run(self) -> int:
         """Serve until shut down; return the process exit status."""
+        if self._simulated_note:
+            _log.critical(self._simulated_note + ": running outside --simulate as configured")
         if self._winch is None:
-            self._winch = make_winch(self.settings, self._clock)
+            self._winch = make_winch(self.settings, self._clock, record=self._journal_event)
         if self._journal is None:
             path = self.settings.store.path or default_store_path()
-            self._journal = Journal(path)
+            self._journal = Journal(
+                path,
+                winch_backend=backend_name(self.settings),
+                simulated=is_simulated(self.settings),
+            )
             for cast_id in self._journal.open():
                 _log.warning("cast left unfinished by a previous run", cast_id=cast_id)
         self._journal.record_event("daemon_started", port=self.settings.serial.port)
+        self._sonde = make_sonde(
+            self.settings, clock=self._clock, journal=self._journal, view=self.snapshot,
+            on_bottom_contact=self.bottom_contact,
+        )  # fmt: skip
         _log.info(
             "cc-daemon started",
             port=self.settings.serial.port,
@@ -200,6 +201,10 @@ class Daemon:
             store=str(self._journal.path),
         )
         try:
+            # A probe left down (a crash, a power cut) comes home before READY.
+            await prepare_winch(
+                self._winch, lambda: self._notifier.notify("STATUS=homing the winch")
+            )
             async with asyncio.TaskGroup() as tasks:
                 self._tasks = tasks
                 link_task = tasks.create_task(
@@ -211,6 +216,13 @@ class Daemon:
                 status = tasks.create_task(
                     self._keep_running("status", self._serve_status), name="status"
                 )
+                sonde = self._sonde and tasks.create_task(
+                    self._keep_running("sonde", self._sonde.run), name="sonde"
+                )
+                sonar = self.sonar
+                sonar_task = sonar and tasks.create_task(
+                    self._keep_running("sonar", sonar.run), name="sonar"
+                )
                 # Serving from here on; the port may come later (a late USB adapter).
                 self._notifier.notify("READY=1", f"STATUS=opening {self.link.port}")
                 await self._shutdown.wait()
@@ -219,6 +231,10 @@ class Daemon:
                 link_task.cancel()
                 housekeeping.cancel()
                 status.cancel()
+                if sonde:
+                    sonde.cancel()
+                if sonar_task:
+                    sonar_task.cancel()
         finally:
             await self._close()
         return self._exit_code
@@ -472,7 +488,12 @@ class Daemon:
             )
             self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
             return
-        plan = plan_cast(station, self.settings.cast, self.settings.winch.max_line_m)
+        bottom = station
+        if self.sonar is not None:  # the freshest confident bottom of the two sonars
+            bottom = self.sonar.station_for_plan(
+                station, now, self.settings.cast.min_sonar_confidence
+            )
+        plan = plan_cast(bottom, self.settings.cast, self.settings.winch.max_line_m)
         if isinstance(plan, SkipCast):
             self._skip_cast(station, plan, now, status)
         else:
@@ -609,7 +630,8 @@ class Daemon:
                     self._stop_motor(reason)
                 case ReportDepth(depth_m=depth, phase=phase):
                     cast.reports += 1
-                    self._send(DepthReport(self._time.at(now), self._depth_mm(depth)))
+                    told = self._sonde.report_depth(depth, now) if self._sonde else depth
+                    self._send(DepthReport(self._time.at(now), self._depth_mm(told)))
                     with self._journaling("record_sample") as journal:
                         if journal is not None:
                             journal.record_sample(cast.cast_id, depth, str(phase))
@@ -624,6 +646,12 @@ class Daemon:
                         stranded_for_s=round(now - cast.machine.started_at),
                     )
         return commanded
+
+    def bottom_contact(self, depth_m: float) -> None:
+        """The sonde says the probe is on the bottom: stop paying out, go on from there."""
+        cast = self._cast
+        if cast is not None:
+            self._execute(cast, cast.machine.bottom_contact(self._clock.monotonic(), depth_m))
 
     def _phase_changed(self, cast: _ActiveCast, old: Phase, new: Phase, reason: str | None) -> None:
         depth = round(cast.machine.depth_m, 3)

@@ -24,6 +24,9 @@ class SystemdNotifier:
         self._address = address or None
         self._watchdog = watchdog
         self._socket: socket.socket | None = None
+        # Put before every STATUS= line (a simulated winch outside --simulate says so
+        # in `systemctl status`, whatever else the status says).
+        self.status_prefix = ""
 
     @classmethod
     def from_environment(cls) -> SystemdNotifier:
@@ -39,6 +42,9 @@ class SystemdNotifier:
     def notify(self, *lines: str) -> None:
         if self._address is None:
             return
+        if self.status_prefix:
+            prefix = "STATUS=" + self.status_prefix
+            lines = tuple(prefix + ln[7:] if ln.startswith("STATUS=") else ln for ln in lines)
         try:
             if self._socket is None:
                 self._socket = socket.socket(

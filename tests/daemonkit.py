@@ -25,9 +25,14 @@ from cc_daemon.sim.pty import PtyPair
 
 REPO = Path(__file__).resolve().parent.parent
 
-# Fast casts: 3 m at 1 m/s, 1 s at the bottom -> R-F about 7 s after R-O.
+# Fast casts: 3 m at 1 m/s, 1 s at the bottom -> R-F about 7 s after R-O. The
+# simulated winch outside --simulate must be asked for by name (cc_daemon.simgate).
 FAST_CAST: dict[str, Any] = {
-    "winch": {"max_line_m": 20.0, "sim": {"speed_m_s": 1.0}},
+    "winch": {
+        "backend": "sim",
+        "max_line_m": 20.0,
+        "sim": {"speed_m_s": 1.0, "allow_outside_simulation": True},
+    },
     "cast": {"target_depth_m": 3.0, "bottom_dwell_s": 1.0, "max_duration_s": 60.0},
 }
 

@@ -22,6 +22,8 @@ ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE_TOML = ROOT / "config" / "cc-daemon.toml"
 # The configuration reference (docs/configuration.md): its key table and examples.
 CONFIG_REFERENCE = ROOT / "docs" / "configuration.md"
+# Sections documented on their own page, in the same table form.
+SECTION_REFERENCES = (ROOT / "docs" / "sonde.md", ROOT / "docs" / "sonar.md")
 PREFIX = "cc-daemon: bad configuration: "
 RATES = "1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600"
 LEVELS = '"debug", "info", "warning", "error" or "critical"'
@@ -268,12 +270,13 @@ def test_unknown_key_in_file(tmp_path: Path) -> None:
 
 
 def test_unknown_section_and_subsection_in_file(tmp_path: Path) -> None:
-    config = write(tmp_path, "[winch.gpio]\npin = 17\n[logging]\nlevel = 'debug'\n")
+    config = write(tmp_path, "[winch.stepper]\npin = 17\n[logging]\nlevel = 'debug'\n")
     assert problems(config) == [
-        f"winch.gpio (from {config}): unknown key; "
-        "allowed keys in [winch]: backend, max_line_m, sim",
+        f"winch.stepper (from {config}): unknown key; "
+        "allowed keys in [winch]: backend, max_line_m, sim, gpio",
         f"logging (from {config}): unknown section; "
-        "allowed sections: serial, winch, cast, store, log, status (did you mean log?)",
+        "allowed sections: serial, winch, cast, store, log, status, sonde, sonar"
+        " (did you mean log?)",
     ]
 
 
@@ -282,7 +285,7 @@ def test_unknown_environment_variables_are_errors() -> None:
         f"serial.bogus (from CC_DAEMON_SERIAL__BOGUS): unknown key; allowed keys in [serial]: "
         f"{SERIAL_KEYS}",
         "port (from CC_DAEMON_PORT): unknown section; "
-        "allowed sections: serial, winch, cast, store, log, status",
+        "allowed sections: serial, winch, cast, store, log, status, sonde, sonar",
     ]
 
 
@@ -477,7 +480,10 @@ def documented_keys(text: str) -> set[str]:
 
 def test_example_file_loads_to_the_defaults() -> None:
     settings = load(EXAMPLE_TOML)
-    assert settings.model_dump() == Settings().model_dump()
+    # Every default, except that the shipped file selects the real winch: the
+    # built-in "sim" is refused outside --simulate (cc_daemon.simgate).
+    expected = Settings.model_validate({"winch": {"backend": "gpio"}}).model_dump()
+    assert settings.model_dump() == expected
     assert settings.source_file == EXAMPLE_TOML
 
 
@@ -503,7 +509,12 @@ def _leaf_names(section: dict[str, Any], prefix: str = "") -> Iterator[str]:
 def reference_rows() -> dict[str, str]:
     """key -> default column of the reference's key table."""
     rows: dict[str, str] = {}
-    for line in CONFIG_REFERENCE.read_text(encoding="utf-8").splitlines():
+    lines = [
+        line
+        for page in (CONFIG_REFERENCE, *SECTION_REFERENCES)
+        for line in page.read_text(encoding="utf-8").splitlines()
+    ]
+    for line in lines:
         row = re.match(r"\| `([\w.]+)` \| ([^|]*) \|", line)
         if row and "." in row[1]:
             rows[row[1]] = row[2].strip()
@@ -517,6 +528,8 @@ def as_toml(value: Any) -> str:
         return "`true`" if value else "`false`"
     if isinstance(value, str):
         return f'`"{value}"`'
+    if isinstance(value, tuple):  # an array of tables, shown on its page
+        return "the default map (below)"
     return f"`{value}`"
 
 

@@ -277,11 +277,47 @@ async def test_a_stranded_probe_is_reported_loudly_and_never_finished(
     assert cast_rows(daemon) == [(1, "unfinished")]
 
 
-async def test_the_gpio_backend_is_refused_before_anything_is_opened(
+async def test_a_simulated_winch_not_asked_for_is_refused_before_anything_is_opened(
     make_daemon: MakeDaemon,
 ) -> None:
-    daemon = make_daemon({"winch": {"backend": "gpio"}})
+    daemon = make_daemon({"winch": {"sim": {"allow_outside_simulation": False}}})
     daemon.start()
     assert await daemon.wait_exit(10) == 2
-    assert "cc-daemon: bad configuration: winch.backend = 'gpio'" in daemon.log_text()
+    text = daemon.log_text()
+    assert 'cc-daemon: bad configuration: winch.backend = "sim": a simulated winch' in text
+    assert "winch.sim.allow_outside_simulation = true" in text
     assert not daemon.db.exists()
+
+
+async def test_the_gpio_winch_without_gpio_pins_exits_saying_why(make_daemon: MakeDaemon) -> None:
+    daemon = make_daemon({"winch": {"backend": "gpio"}})  # a laptop: no lgpio, no GPIO chip
+    daemon.start()
+    assert await daemon.wait_exit(10) == 1
+    assert "cc-daemon: cannot " in daemon.log_text() and "GPIO" in daemon.log_text()
+    assert not daemon.db.exists()
+
+
+async def test_a_whole_cast_on_the_gpio_winch_with_mock_pins(make_daemon: MakeDaemon) -> None:
+    gpio = {"pin_factory": "mock", "line_speed_m_s": 2.0, "stall_timeout_s": 1.0}
+    daemon = make_daemon({"winch": {"backend": "gpio", "gpio": gpio}})
+    await daemon.start_and_connect()
+    await daemon.port.send(station())  # type: ignore[union-attr]
+    frames = await run_cast(daemon)
+    assert kinds(frames)[0] == "R-O" and kinds(frames)[-1] == "R-F"
+    depths = [r.message.depth_mm for r in frames if isinstance(r.message, DepthReport)]
+    assert max(depths) >= 2800  # 3 m, by the drum's count (0.14 m a pulse)
+    last = frames[-1].message
+    assert isinstance(last, Finished) and last.depth_mm == 0
+    daemon.send_signal(signal.SIGTERM)
+    assert await daemon.wait_exit(10) == 0
+    events = daemon.log_events()
+    warned = [e for e in events if str(e.get("event", "")).startswith("SIMULATED WINCH")]
+    assert warned and warned[0]["level"] == "critical"
+    assert any(e.get("event") == "winch home: limit switch closed" for e in events)
+    with sqlite3.connect(daemon.db) as db:
+        assert db.execute("SELECT winch_backend, simulated FROM sessions").fetchall() == [
+            ("gpio-mock", 1)
+        ]
+        assert db.execute("SELECT outcome, winch_backend, simulated FROM casts").fetchall() == [
+            ("completed", "gpio-mock", 1)
+        ]

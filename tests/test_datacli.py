@@ -98,12 +98,21 @@ def test_casts_since_and_running_casts(tmp_path: Path, capsys: pytest.CaptureFix
     assert len(capsys.readouterr().out.splitlines()) == 3  # header, one cast, footnote
 
 
+def samples_csv(text: str) -> list[dict[str, str]]:
+    """The rows of a samples CSV, after its `#` provenance line."""
+    assert text.startswith("# winch_backend: ")
+    return list(csv.DictReader(io.StringIO(text.split("\r\n", 1)[1])))
+
+
 def test_export_samples_csv_to_stdout_and_telemetry_to_a_file(
     survey: tuple[Path, SurveySummary], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     db, summary = survey
     assert run("export", "--db", str(db), "--format", "csv") == 0
-    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    text = capsys.readouterr().out
+    # The synthetic journal predates the winch being recorded: it says so.
+    assert text.startswith("# winch_backend: unknown; simulated: unknown\r\n")
+    rows = samples_csv(text)
     assert len(rows) == summary.samples
     assert {r["phase"] for r in rows} == {"soaking", "descending", "dwelling", "ascending"}
 
@@ -125,14 +134,14 @@ def test_export_filters_by_cast_and_time(
         cast2 = reader.casts(cast_id=2)[0]
         third_start = reader.casts(cast_id=3)[0].start_wall_s
     assert run("export", "--db", str(db), "--format", "csv", "--cast", "2") == 0
-    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    rows = samples_csv(capsys.readouterr().out)
     assert {r["cast_id"] for r in rows} == {"2"}
     assert len(rows) == cast2.samples
 
     since = "2024-06-01T08:20:00Z"  # cast 3 starts at 08:20
     assert third_start == pytest.approx(1_717_230_000.0)
     assert run("export", "--db", str(db), "--format", "csv", "--since", since) == 0
-    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    rows = samples_csv(capsys.readouterr().out)
     assert rows and {r["cast_id"] for r in rows} == {"3"}
     assert min(r["time_utc"] for r in rows) >= "2024-06-01T08:20:00.000Z"
 

@@ -87,6 +87,8 @@ def healthy_pi(tmp_path: Path) -> Pi:
     box.write("/proc/device-tree/model", "Raspberry Pi 4 Model B Rev 1.4\0")
     (root / "proc/1/fd").mkdir(parents=True)
     (root / "dev").mkdir()
+    box.write("/dev/gpiochip0", "")  # the shipped configuration drives the GPIO winch
+    (root / "dev/gpiochip0").chmod(0o660)
     box.link("/dev/serial0", "ttyAMA0")
     box.link("/dev/ttyAMA0", device)  # absolute and outside the root: the real pty
     state = root / "var/lib/cc-daemon"
@@ -116,6 +118,7 @@ async def test_a_healthy_pi_is_all_ok(pi: Pi) -> None:
         "login console": "OK",
         "port free": "OK",
         "UART": "OK",
+        "GPIO": "OK",
         "journal": "OK",
         "clock": "OK",
         "service": "OK",
@@ -166,7 +169,10 @@ def plant_mini_uart(pi: Pi) -> None:
 
 
 def plant_gpio_without_devices(pi: Pi) -> None:
-    pi.write("/etc/cc-daemon/cc-daemon.toml", '[winch]\nbackend = "gpio"\n')
+    pi.write(
+        "/etc/cc-daemon/cc-daemon.toml", '[winch]\nbackend = "gpio"\n[winch.gpio]\nadc = true\n'
+    )
+    (pi.root / "dev/gpiochip0").unlink()
 
 
 def plant_readonly_journal(pi: Pi) -> None:

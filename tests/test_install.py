@@ -19,6 +19,8 @@ from tests.daemonkit import REPO
 
 pytestmark = [
     pytest.mark.slow,
+    # A real pip install into a fresh venv: tens of seconds, more on a loaded machine.
+    pytest.mark.timeout(300),
     pytest.mark.skipif(
         shutil.which("systemd-sysusers") is None,
         reason="systemd-sysusers not installed (apt-get install systemd): install not checked",
@@ -35,7 +37,7 @@ def make(target: str, destdir: Path | None, **env: str) -> subprocess.CompletedP
         text=True,
         check=False,
         env={**os.environ, "PYTHON": sys.executable, **env},
-        timeout=50,
+        timeout=240,
     )
 
 

@@ -43,6 +43,7 @@ from cc_daemon.sim.options import (
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.runner import run_autopilot, run_simulation
 from cc_daemon.sim.session import Run
+from cc_daemon.sim.sonar_chain import SETTLE_S
 from cc_daemon.sim.summary import build_summary
 from cc_daemon.store import JournalReader
 
@@ -199,7 +200,8 @@ async def _survey_interrupted_at(tmp_path: Path, *seconds: float) -> tuple[int, 
     (mid-cast at S1); its exit status and plain output."""
     slow_winch = Pace("quick", 0.25, 300.0, 0.4, cast={"bottom_dwell_s": 5.0})
     loop = asyncio.get_running_loop()
-    timers = [loop.call_later(t, os.kill, os.getpid(), signal.SIGINT) for t in seconds]
+    # The boat settles on station (SETTLE_S) before its M, so the cast starts that much later.
+    timers = [loop.call_later(t + SETTLE_S, os.kill, os.getpid(), signal.SIGINT) for t in seconds]
     out = io.StringIO()
     try:
         code = await run_simulation(

@@ -2,8 +2,8 @@
 
 `systemd-analyze security --offline=yes` and `systemd-analyze verify` read the
 unit file alone, so they run without systemd as PID 1 (a container, CI). Where
-the tool is missing the checks are skipped with the reason; CI installs it
-(`.ci/run`).
+the tool is missing the checks are skipped with the reason; `make test` installs
+Debian's `systemd` package first where it can (root with apt).
 """
 
 from __future__ import annotations

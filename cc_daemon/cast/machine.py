@@ -111,6 +111,7 @@ class CastMachine:
         self.reached_depth_m = 0.0
         self.abort_reason: str | None = None
         self.winch_fault: str | None = None
+        self.bottom_contact_m: float | None = None
         self._legs: list[Leg] = list(plan.legs)
         self._commanded = False  # the current Move leg's command has been issued
         self._hold_until: float | None = None
@@ -199,6 +200,21 @@ class CastMachine:
         if self.phase in (Phase.ABORTING, Phase.STRANDED, Phase.FINISHED):
             return out
         self._abort(out, now, reason)
+        return out
+
+    def bottom_contact(self, now: float, depth_m: float) -> list[Action]:
+        """The probe touched bottom while paying out: stop there and go on with the
+        cast from there (the legs below are dropped; the bottom dwell and the
+        ascent remain). Ignored outside a descent. Idempotent."""
+        out: list[Action] = []
+        descending = [i for i, leg in enumerate(self._legs) if leg.phase is Phase.DESCENDING]
+        if self.phase is not Phase.DESCENDING or not descending:
+            return out
+        out.append(StopWinch(f"bottom contact at {depth_m:.2f} m"))
+        del self._legs[: descending[-1] + 1]
+        self.bottom_contact_m = depth_m
+        self._commanded = False
+        self._hold_until = None
         return out
 
     def winch_error(self, now: float, reason: str) -> list[Action]:

@@ -182,12 +182,15 @@ def _uart_kind(system: System, port: str, name: str) -> Iterator[Check]:
 
 
 def check_gpio(system: System, settings: Settings, who: Identity | None) -> Iterator[Check]:
-    if settings.winch.backend != "gpio":
+    gpio = settings.winch.gpio
+    if settings.winch.backend != "gpio" or gpio.pin_factory != "native":
         return
-    for label, pattern, fix in (
-        ("GPIO", "gpiochip*", "a Raspberry Pi kernel provides /dev/gpiochip0; group gpio"),
-        ("SPI", "spidev*", "enable SPI: sudo raspi-config nonint do_spi 0, then reboot"),
-    ):
+    needed = [("GPIO", "gpiochip*", "a Raspberry Pi kernel provides /dev/gpiochip0; group gpio")]
+    if gpio.adc:  # the MCP3008 on SPI0
+        needed.append(
+            ("SPI", "spidev*", "enable SPI: sudo raspi-config nonint do_spi 0, then reboot")
+        )
+    for label, pattern, fix in needed:
         devices = sorted(system.path("/dev").glob(pattern))
         if not devices:
             yield Check(label, "FAIL", f"no /dev/{pattern}", fix)

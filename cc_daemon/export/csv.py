@@ -49,8 +49,13 @@ def _deg(value: float | None) -> str:
     return "" if value is None else f"{value:.7f}"
 
 
-def write_samples(samples: Iterable[SampleRecord], out: TextIO) -> int:
-    """One row per depth sample; returns the number of rows written."""
+def write_samples(
+    samples: Iterable[SampleRecord], out: TextIO, *, provenance: str | None = None
+) -> int:
+    """One row per depth sample; returns the number of rows written. `provenance`
+    (the winch and whether it was simulated) goes first, as a `#` comment line."""
+    if provenance is not None:
+        out.write(provenance + "\r\n")
     writer = csv.writer(out)
     writer.writerow(SAMPLE_COLUMNS)
     count = 0

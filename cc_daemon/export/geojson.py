@@ -55,6 +55,8 @@ def _station(cast: CastRecord) -> dict[str, Any]:
             "water_depth_m": _mm(cast.water_depth_m),
             "sonar_confidence_pct": cast.sonar_confidence_pct,
             "samples": cast.samples,
+            "winch_backend": cast.winch_backend,
+            "simulated": cast.simulated,
         },
     }
 

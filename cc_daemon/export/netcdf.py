@@ -31,6 +31,7 @@ from typing import Any
 
 from cc_daemon import __version__
 from cc_daemon.export import OptionalDependencyError
+from cc_daemon.export.provenance import of_casts
 from cc_daemon.store.reader import CastRecord, SampleRecord
 
 TIME_UNITS = "seconds since 1970-01-01 00:00:00 UTC"
@@ -98,6 +99,9 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
             " profiles recorded before the clock was synchronised. Positions are the"
             " station where the autopilot asked for the cast."
         )
+        provenance = of_casts(casts)
+        nc.winch_backend = provenance.winch_backend
+        nc.simulated = provenance.simulated
         nc.createDimension("profile", len(casts))
         nc.createDimension("obs", len(kept))
 

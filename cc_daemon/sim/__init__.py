@@ -4,6 +4,9 @@
 - `port`: frame-level asyncio I/O over the pty master or a serial port.
 - `mission`: stations, transits and the water-depth field (pure).
 - `autopilot`: the firmware's behaviour as a sans-IO state machine (pure).
+- `ping1d`: a simulated Blue Robotics Ping1D hearing the mission's water.
+- `sonar_chain`: the autopilot's sonar module on a port, with the simulated Ping1D behind it.
+- `sonar_cli`: `cc-daemon simulate-sonar`, the simulated Ping1D alone.
 - `console`: the live view and the end-of-run summary.
 - `options`: a run's pace and options, and the daemon's settings for it (pure).
 - `session`: one run's frame loop and its narration; `logtap`: the daemon's log lines.

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import random
 from bisect import bisect_left
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -51,7 +52,7 @@ from cc_daemon.protocol import (
     StartMeasuring,
     Telemetry,
 )
-from cc_daemon.sim.mission import ORIGIN_ALT_M, Mission, Point, Station
+from cc_daemon.sim.mission import ORIGIN_ALT_M, Mission, Point, SonarReading, Station
 
 
 class Phase(StrEnum):
@@ -128,6 +129,9 @@ class AutopilotConfig:
     # serial.reconnect_max_s (5 s by default), plus a second to answer.
     outage_grace_s: float = 6.0
     station_grace_s: float = 3.0  # late answers to our last M after leaving are not news
+    # Hold on station this long (sending T) before the first M, so a sonar read
+    # over a real link (`sim.sonar_chain`) has heard the station, not the approach.
+    settle_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.frame_period_s <= 0:
@@ -216,6 +220,8 @@ class Autopilot:
         self._flips_out: list[float] = []  # ... and on ours
         self._last_heard_at = 0.0  # the last frame (good or corrupt) from the daemon
         self.finished = False
+        # The sonar module's latest reading (`sim.sonar_chain`); None: made up from the field.
+        self.sonar: Callable[[], SonarReading] | None = None
 
     # ------------------------------------------------------------ queries
 
@@ -363,7 +369,8 @@ class Autopilot:
     def _frame(self, now: float) -> AutopilotMessage:
         stamp = int(now) & 0xFFFF  # whole seconds since boot, as the firmware counts
         log = self.logs[self.index]
-        if self.phase is Phase.REQUESTING:
+        settling = log.arrived_at is not None and now - log.arrived_at < self.config.settle_s
+        if self.phase is Phase.REQUESTING and not settling:
             return self._start_measuring(now, stamp, log)
         if self.phase is Phase.CASTING:
             self._frames_at_station += 1
@@ -387,7 +394,10 @@ class Autopilot:
 
     def _fix(self, *, moving: bool) -> tuple[int, int, int, int, int]:
         lon, lat = self._position.e7
-        sonar = self.mission.sonar(self._position, moving=moving, rng=self._rng)
+        if self.sonar is not None:
+            sonar = self.sonar()
+        else:
+            sonar = self.mission.sonar(self._position, moving=moving, rng=self._rng)
         alt_mm = round((ORIGIN_ALT_M + self._rng.uniform(-0.03, 0.03)) * 1000)  # a ripple
         return lon, lat, alt_mm, sonar.distance_mm, sonar.confidence_pct
 

@@ -118,6 +118,14 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the simulated winch jams on the way home: no R-F, the autopilot gives up",
     )
+    group.add_argument(
+        "--sonar-port",
+        metavar="PATH",
+        help="the autopilot reads a real Ping1D here (115200 8N1) instead of the simulated one",
+    )
+    group.add_argument(
+        "--no-sonar", action="store_true", help="no Ping1D: the autopilot makes its readings up"
+    )
     group.add_argument("--plain", action="store_true", help="plain log lines even on a terminal")
 
 
@@ -135,6 +143,8 @@ def options_from_args(args: argparse.Namespace, settings: Settings | None) -> Si
         db=getattr(args, "db", None),
         live=False if args.plain else None,
         settings=settings,
+        sonar=not args.no_sonar,
+        sonar_port=args.sonar_port,
     )
 
 

@@ -73,6 +73,8 @@ class SimOptions:
     out: TextIO | None = None  # default sys.stdout
     handle_signals: bool = True  # Ctrl-C / SIGTERM end the run cleanly
     pace: Pace | None = None  # default FAST, or REALTIME with `realtime`
+    sonar: bool = True  # the autopilot reads a Ping1D: simulated on a pty, or at sonar_port
+    sonar_port: str | None = None  # a real Ping1D (a bench test of the whole chain)
 
     def __post_init__(self) -> None:
         if self.stations < 1:
@@ -125,7 +127,13 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
     pace = options.chosen_pace
     base = (options.settings or Settings()).model_dump(mode="python")
     base["serial"]["port"] = str(port)
-    base["winch"]["backend"] = "sim"
+    gpio = base["winch"]["gpio"]
+    if base["winch"]["backend"] == "gpio" and gpio["pin_factory"] == "mock":
+        # --winch gpio-mock: the real GPIO winch code on mock pins and a simulated drum.
+        if pace.winch_speed_m_s is not None:
+            gpio["line_speed_m_s"] = pace.winch_speed_m_s
+    else:
+        base["winch"]["backend"] = "sim"  # never the boat's real winch from a laptop demo
     sim = base["winch"]["sim"]
     if pace.winch_speed_m_s is not None:
         sim["speed_m_s"] = pace.winch_speed_m_s
@@ -135,6 +143,8 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
         sim["fail_home"] = True
     base["cast"].update(pace.cast)
     base["store"]["path"] = str(options.db_path.absolute())
+    if base["sonde"]["backend"] == "none":  # a simulated survey measures with a simulated sonde
+        base["sonde"]["backend"] = "sim"
     return Settings.model_validate(base)
 
 

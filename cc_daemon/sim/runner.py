@@ -28,6 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO, cast
 
+from cc_daemon.sim import sondesummary
 from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig, Phase
 from cc_daemon.sim.console import SimConsole
 from cc_daemon.sim.logtap import LogTap
@@ -128,7 +129,7 @@ async def run_simulation(options: SimOptions) -> int:
     ):
         settings = daemon_settings(options, pair.path)
         autopilot = Autopilot(mission, autopilot_config(options, settings))
-        daemon = Daemon(settings)
+        daemon = Daemon(settings, simulation=True)
         run = Run(
             mission,
             autopilot,
@@ -141,6 +142,13 @@ async def run_simulation(options: SimOptions) -> int:
             drop_for=options.drop_link_for,
         )
         run.tap = LogTap(log_file, run.now)
+        sonar = None
+        if options.sonar:
+            from cc_daemon.sim.sonar_chain import attach_sonar
+
+            sonar = await attach_sonar(
+                autopilot, run.now, port=options.sonar_port, workdir=Path(tmp), seed=options.seed
+            )
         configure_logging("json", settings.log.level, stream=cast(TextIO, run.tap))
         console.start(mission, _headline(options, mission))
         daemon_task = asyncio.create_task(daemon.run(), name="daemon")
@@ -156,11 +164,14 @@ async def run_simulation(options: SimOptions) -> int:
             finally:
                 run.drain_log()
                 await run.close()
+                if sonar is not None:
+                    await sonar.close()
                 console.stop()
                 reset_logging()
         casts: list[JournalCast] | None = None
         try:
             casts = journal_casts(db_path, mission, run.wall0 - 1.0)
+            notes.extend(sondesummary.sonde_lines(db_path, run.wall0 - 1.0))
         except StoreError as exc:
             notes.append(f"could not read the journal: {exc}")
         summary = build_summary(
@@ -230,7 +241,9 @@ def _shutdown_grace_s(settings: Settings, *, gave_up: bool) -> float:
     the autopilot already gave up waiting for R-F (a stranded probe stays down)."""
     if gave_up:
         return 5.0
-    return settings.winch.max_line_m / settings.winch.sim.speed_m_s + 10.0
+    winch = settings.winch
+    speed = winch.gpio.line_speed_m_s if winch.backend == "gpio" else winch.sim.speed_m_s
+    return winch.max_line_m / speed + 10.0
 
 
 async def _wait_ready(daemon: Daemon, task: asyncio.Task[int]) -> str | None:

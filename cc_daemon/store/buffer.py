@@ -47,6 +47,8 @@ class RowBuffer:
 
     # Row kinds to sacrifice after the fixes when the buffer is full, in order.
     shed_order: tuple[int, ...] = ()
+    # Kinds written in bulk with the fixes (no wake-up of their own), shed with them.
+    bulk_kinds: frozenset[int] = frozenset({FIX})
 
     def __init__(self, max_buffered_rows: int) -> None:
         if max_buffered_rows < 1:
@@ -71,7 +73,7 @@ class RowBuffer:
 
     def _buffer_row(self, row: Row) -> bool:
         """Add `row`, shedding if over the bound; return whether it is a fix."""
-        fix: bool = row[0] == FIX
+        fix: bool = row[0] in self.bulk_kinds
         with self._lock:
             (self._fixes if fix else self._urgent).append(row)
             total = self._pending_locked()
@@ -118,7 +120,8 @@ class RowBuffer:
         self._in_flight = []
         if not rows:
             return 0
-        self._urgent[:0] = [row for row in rows if row[0] != FIX]
-        self._fixes[:0] = [row for row in rows if row[0] == FIX]
+        bulk = self.bulk_kinds
+        self._urgent[:0] = [row for row in rows if row[0] not in bulk]
+        self._fixes[:0] = [row for row in rows if row[0] in bulk]
         excess = len(self._urgent) + len(self._fixes) - self._max_rows
         return self._shed_locked(excess) if excess > 0 else 0

@@ -1,8 +1,8 @@
-"""The survey journal's records: fixes, casts, samples and events, and their tables.
+"""The survey journal's records: fixes, casts, samples, events and sonar readings.
 
 This module owns what the journal holds: the `Journal` API the daemon calls
 from its asyncio loop (`record_fix`, `start_cast`, `record_sample`, `end_cast`,
-`record_event`), the rows those build and the SQL that stores them, the
+`record_event`, `record_sonar`), the rows those build and the SQL that stores them, the
 session each run opens, and closing the casts a crash left open. Every call
 stamps its row (monotonic time, wall-clock UTC, whether the clock looked
 synchronised), hands it to the buffered writer (`writer.BufferedWriter`) and
@@ -24,6 +24,7 @@ from typing import Any
 from cc_daemon import __version__
 from cc_daemon.protocol import StartMeasuring, Telemetry
 from cc_daemon.status.clocksync import clock_sync
+from cc_daemon.store import sonde
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
 from cc_daemon.store.writer import BufferedWriter
@@ -42,6 +43,7 @@ _CAST = 1
 _SAMPLE = 2
 _END = 3
 _EVENT = 4
+_SONAR = 6  # written in bulk with the fixes (`bulk_kinds`); 5 is the sonde's (`store.sonde`)
 
 _INSERT_FIX = (
     "INSERT INTO fixes (session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s,"
@@ -51,7 +53,8 @@ _INSERT_FIX = (
 _INSERT_CAST = (
     "INSERT INTO casts (id, session_id, start_mono_s, start_wall_s, start_clock_synced,"
     " ap_timestamp_s, lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct,"
-    " planned_depth_m, mode, plan_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
+    " planned_depth_m, mode, plan_json, winch_backend, simulated)"
+    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
 )
 _INSERT_SAMPLE = (
     "INSERT INTO samples (cast_id, mono_s, wall_s, clock_synced, depth_m, phase)"
@@ -60,6 +63,10 @@ _INSERT_SAMPLE = (
 _UPDATE_END = (
     "UPDATE casts SET end_mono_s = ?, end_wall_s = ?, end_clock_synced = ?, outcome = ?,"
     " reached_depth_m = ?, reason = ? WHERE id = ?"
+)
+_INSERT_SONAR = (
+    "INSERT INTO sonar_readings (session_id, mono_s, wall_s, clock_synced, port, distance_mm,"
+    " confidence_pct) VALUES (?, ?, ?, ?, ?, ?, ?)"
 )
 _INSERT_EVENT = (
     "INSERT INTO events (session_id, mono_s, wall_s, clock_synced, kind, detail_json)"
@@ -111,6 +118,8 @@ _SPILL_LAYOUT: dict[int, tuple[str, tuple[str, ...]]] = {
             "planned_depth_m",
             "mode",
             "plan_json",
+            "winch_backend",
+            "simulated",
         ),
     ),
     _SAMPLE: ("samples", ("cast_id", "mono_s", "wall_s", "clock_synced", "depth_m", "phase")),
@@ -127,6 +136,11 @@ _SPILL_LAYOUT: dict[int, tuple[str, tuple[str, ...]]] = {
         ),
     ),
     _EVENT: ("events", ("mono_s", "wall_s", "clock_synced", "kind", "detail_json")),
+    sonde.SONDE: ("sonde_samples", sonde.COLUMNS),
+    _SONAR: (
+        "sonar_readings",
+        ("mono_s", "wall_s", "clock_synced", "port", "distance_mm", "confidence_pct"),
+    ),
 }
 
 
@@ -176,8 +190,11 @@ class Journal(BufferedWriter):
     methods are for the asyncio loop thread and return in microseconds.
     """
 
-    # When the buffer is full: after the fixes, events go, then samples; casts never.
-    shed_order = (_EVENT, _SAMPLE)
+    # When the buffer is full: after the fixes, events go, then samples, then the
+    # sonde's readings (what the boat stops for); casts never.
+    # Sonar readings are bulk rows like the fixes: written and shed with them.
+    shed_order = (_EVENT, _SAMPLE, sonde.SONDE)
+    bulk_kinds = frozenset({FIX, _SONAR})
 
     def __init__(
         self,
@@ -188,9 +205,13 @@ class Journal(BufferedWriter):
         clock_synced: Callable[[], bool] | None = None,
         max_buffered_rows: int = 100_000,
         on_connect: Callable[[sqlite3.Connection], None] | None = None,
+        winch_backend: str | None = None,
+        simulated: bool | None = None,
     ) -> None:
         """`on_connect` is called with every new connection before use (tests use it
-        to set `PRAGMA max_page_count`, which makes SQLite report a full disk)."""
+        to set `PRAGMA max_page_count`, which makes SQLite report a full disk).
+        `winch_backend` and `simulated` go on the session and on every cast (None:
+        not recorded)."""
         super().__init__(
             path, wall=wall, max_buffered_rows=max_buffered_rows, on_connect=on_connect
         )
@@ -198,6 +219,8 @@ class Journal(BufferedWriter):
         # The same answer `cc-daemon status` gives: the kernel's (adjtimex), which
         # every time daemon sets, else timesyncd's flag file.
         self._clock_synced_now = clock_synced or _kernel_says_synced
+        self._winch_backend = winch_backend
+        self._simulated = None if simulated is None else int(simulated)
         self._next_cast_id = 1  # guarded by _lock: the writer raises it past the file's
 
         # Loop-thread only.
@@ -262,7 +285,8 @@ class Journal(BufferedWriter):
             except (TypeError, ValueError) as exc:  # a circular plan, say
                 plan_json = _to_json({"unserialisable_plan": repr(exc)})
             row = (_CAST, cast_id, mono, self._wall(), self._clock_synced(mono), *station)
-            self._append((*row, planned_depth_m, mode, plan_json))
+            winch = (self._winch_backend, self._simulated)
+            self._append((*row, planned_depth_m, mode, plan_json, *winch))
         except Exception as exc:
             self._errors.error("start_cast", "journal could not record a cast", error=repr(exc))
         return cast_id
@@ -285,6 +309,45 @@ class Journal(BufferedWriter):
         except Exception as exc:
             self._errors.error(
                 "record_sample", "journal could not record a sample", error=repr(exc)
+            )
+
+    def record_sonde_sample(
+        self,
+        *,
+        cast_id: int | None,
+        phase: str,
+        mono_s: float,
+        wall_s: float,
+        duration_s: float,
+        status: str,
+        error: str | None,
+        line_out_m: float | None,
+        sonde_depth_m: float | None,
+        values: dict[str, float | None],
+        missing: dict[str, str],
+        simulated: bool,
+    ) -> None:
+        """One sonde reading, stamped with the times its request went out (`store.sonde`)."""
+        try:
+            row = sonde.build_row(
+                cast_id=cast_id,
+                phase=phase,
+                mono_s=mono_s,
+                wall_s=wall_s,
+                clock_synced=self._clock_synced(mono_s),
+                duration_s=duration_s,
+                status=status,
+                error=error,
+                line_out_m=line_out_m,
+                sonde_depth_m=sonde_depth_m,
+                simulated=simulated,
+                values=values,
+                missing=missing,
+            )
+            self._append(row)
+        except Exception as exc:
+            self._errors.error(
+                "record_sonde_sample", "journal could not record a sonde reading", error=repr(exc)
             )
 
     def end_cast(
@@ -321,6 +384,17 @@ class Journal(BufferedWriter):
             )
         except Exception as exc:
             self._errors.error("end_cast", "journal could not record a cast end", error=repr(exc))
+
+    def record_sonar(self, port: str, distance_mm: int, confidence_pct: int) -> None:
+        """One reading of the daemon's own sonar (`[sonar]`), as it arrived."""
+        try:
+            mono = self._monotonic()
+            row = (_SONAR, mono, self._wall(), self._clock_synced(mono), port)
+            self._append((*row, distance_mm, confidence_pct))
+        except Exception as exc:
+            self._errors.error(
+                "record_sonar", "journal could not record a sonar reading", error=repr(exc)
+            )
 
     def record_event(self, kind: str, **detail: object) -> None:
         """A link or fault event (`port_lost`, `winch_fault`, ...) with its details.
@@ -404,7 +478,7 @@ class Journal(BufferedWriter):
         mono = self._monotonic()
         cursor = conn.execute(
             "INSERT INTO sessions (boot_id, pid, software, opened_mono_s, opened_wall_s,"
-            " clock_synced) VALUES (?, ?, ?, ?, ?, ?)",
+            " clock_synced, winch_backend, simulated) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
             (
                 _boot_id(),
                 os.getpid(),
@@ -412,6 +486,8 @@ class Journal(BufferedWriter):
                 mono,
                 self._wall(),
                 self._ask_clock_synced(),
+                self._winch_backend,
+                self._simulated,
             ),
         )
         self._session_id = cursor.lastrowid
@@ -443,6 +519,8 @@ class Journal(BufferedWriter):
         kind = row[0]
         if kind == FIX:
             conn.execute(_INSERT_FIX, (self._session_id, *row[1:]))
+        elif kind == _SONAR:
+            conn.execute(_INSERT_SONAR, (self._session_id, *row[1:]))
         elif kind == _SAMPLE:
             conn.execute(_INSERT_SAMPLE, (self._stored_id(row[1], new_ids), *row[2:]))
         elif kind == _CAST:
@@ -458,6 +536,9 @@ class Journal(BufferedWriter):
         elif kind == _EVENT:
             detail_json = self._event_detail(row, new_ids)
             conn.execute(_INSERT_EVENT, (self._session_id, *row[1:5], detail_json))
+        elif kind == sonde.SONDE:
+            cast_id = None if row[1] is None else self._stored_id(row[1], new_ids)
+            conn.execute(sonde.INSERT, (self._session_id, cast_id, *row[2:]))
         else:
             raise ValueError(f"unknown journal row kind {kind!r}")
 
@@ -490,7 +571,7 @@ class Journal(BufferedWriter):
             table, columns = _SPILL_LAYOUT[row[0]]
             record: dict[str, object] = {"table": table, "session_id": self._session_id}
             record.update(zip(columns, row[1:], strict=False))
-            if row[0] in (_SAMPLE, _END):
+            if row[0] in (_SAMPLE, _END) or (row[0] == sonde.SONDE and row[1] is not None):
                 record["cast_id"] = self._stored_id(row[1], {})
             elif row[0] == _EVENT:
                 record["detail_json"] = self._event_detail(row, {})

@@ -29,7 +29,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from cc_daemon.store import schema
+from cc_daemon.store import schema, sonde
 from cc_daemon.store.schema import StoreError
 
 # SQLite's primary result codes for "may not write here" and "cannot open".
@@ -61,6 +61,8 @@ class CastRecord(NamedTuple):
     reached_depth_m: float | None
     reason: str | None
     samples: int
+    winch_backend: str | None = None  # "sim", "gpio", "gpio-mock"; None: not recorded
+    simulated: bool | None = None  # True: no probe moved (a simulated winch)
 
 
 class SampleRecord(NamedTuple):
@@ -120,7 +122,7 @@ _CAST_COLUMNS = (
     "id, session_id, start_mono_s, start_wall_s, start_clock_synced, ap_timestamp_s,"
     " lat_e7, lon_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct, planned_depth_m, mode,"
     " plan_json, end_mono_s, end_wall_s, outcome, reached_depth_m, reason,"
-    " (SELECT count(*) FROM samples WHERE cast_id = casts.id)"
+    " (SELECT count(*) FROM samples WHERE cast_id = casts.id), winch_backend, simulated"
 )
 _FIX_COLUMNS = (
     "session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s, lat_e7, lon_e7, alt_mm,"
@@ -154,6 +156,8 @@ def _cast(row: tuple[Any, ...]) -> CastRecord:
         reached_depth_m=row[17],
         reason=row[18],
         samples=row[19],
+        winch_backend=row[20],
+        simulated=None if row[21] is None else bool(row[21]),
     )
 
 
@@ -342,6 +346,12 @@ class JournalReader:
                 detail = {"unreadable_detail": r[5]}
             records.append(EventRecord(r[0], r[1], r[2], bool(r[3]), r[4], detail))
         return records
+
+    def sonde_samples(
+        self, *, cast_id: int | None = None, since: float | None = None
+    ) -> list[sonde.SondeSampleRecord]:
+        """The sonde's readings in time order (`store.sonde`)."""
+        return sonde.read_samples(self._conn, cast_id=cast_id, since=since)
 
     def _cast_end(self, cast: CastRecord) -> tuple[float, float]:
         """When a cast's data ends: its end row, else its last sample, else its start."""

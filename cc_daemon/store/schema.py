@@ -23,6 +23,7 @@ from __future__ import annotations
 import sqlite3
 
 from cc_daemon.errors import CcDaemonError
+from cc_daemon.store import sonde
 
 # "ccdj" in ASCII: lets us refuse to migrate some other program's SQLite file.
 APPLICATION_ID = 0x6363646A
@@ -107,8 +108,38 @@ _V2: tuple[str, ...] = (
     "CREATE INDEX fixes_by_session ON fixes(session_id, mono_s)",
 )
 
-# MIGRATIONS[n] takes a file from version n to version n + 1.
-MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2)
+# Version 4: which winch produced the data, and whether it was simulated (no
+# probe moved), on each session and each cast, so a simulated cast can never be
+# taken for a real one. NULL on older rows: not recorded (before version 4 only
+# the simulated winch existed, but files may have been copied between runs).
+_V4: tuple[str, ...] = (
+    "ALTER TABLE sessions ADD COLUMN winch_backend TEXT",
+    "ALTER TABLE sessions ADD COLUMN simulated INTEGER",
+    "ALTER TABLE casts ADD COLUMN winch_backend TEXT",
+    "ALTER TABLE casts ADD COLUMN simulated INTEGER",
+)
+
+# Version 5, sonar readings: every distance_simple the daemon's own Ping1D sent
+# (`[sonar]`), four a second while it streams. Self-contained: it only adds a
+# table and its index, so it can take any place after _V2.
+_SONAR_READINGS: tuple[str, ...] = (
+    """CREATE TABLE sonar_readings (
+        id INTEGER PRIMARY KEY,
+        session_id INTEGER REFERENCES sessions(id),
+        mono_s REAL NOT NULL,
+        wall_s REAL NOT NULL,
+        clock_synced INTEGER NOT NULL,
+        port TEXT NOT NULL,
+        distance_mm INTEGER NOT NULL,
+        confidence_pct INTEGER NOT NULL
+    )""",
+    "CREATE INDEX sonar_readings_by_wall ON sonar_readings(wall_s)",
+)
+
+# MIGRATIONS[n] takes a file from version n to version n + 1. Version 3: the
+# sonde's readings (self-contained; see `store.sonde`); version 4: the winch
+# backend and whether the data are simulated; version 5: the sonar's readings.
+MIGRATIONS: tuple[tuple[str, ...], ...] = (_V1, _V2, sonde.MIGRATION, _V4, _SONAR_READINGS)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 

@@ -1,0 +1,328 @@
+"""The GPIO winch on gpiozero's MockFactory, driven by a simulated drum: motions and safety.
+
+Every assertion is on what the pins did (the PWM enable pin's state history),
+where the simulated drum's line really is, the winch's status, and the events
+it journaled.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+import structlog
+
+from cc_daemon.errors import WinchFault
+from cc_daemon.winch.mockdrum import DrumFaults
+from cc_daemon.winch.motor import Direction
+from tests.gpiokit import REPO, GpioRig, gpio_rig
+
+MPP = 3.141592653589793 * 0.09 / 2  # metres of line per pulse with the kit's drum
+
+
+def enable_history(rig: GpioRig) -> list[tuple[float, float]]:
+    """(absolute monotonic time, duty) of every change of the PWM enable pin."""
+    pin = rig.enable_pin
+    t = pin._last_change - sum(state.timestamp for state in pin.states[1:])
+    out = []
+    for state in pin.states:
+        t += state.timestamp
+        out.append((t, float(state.state)))
+    return out
+
+
+async def test_a_move_ramps_up_slows_near_the_target_and_stops_within_half_a_pulse() -> None:
+    async with gpio_rig() as rig:
+        assert rig.winch.status().at_home and rig.winch.homed
+        rig.enable_pin.clear_states()
+        rig.winch.move_to(2.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is None and not status.moving
+        assert abs(status.depth_m - 2.0) <= MPP / 2
+        assert abs(rig.drum.line_m - 2.0) <= MPP / 2 + 0.02  # the drum, not just the count
+        duties = [duty for _, duty in enable_history(rig)]
+        assert duties[-1] == 0.0
+        running = duties[1:-1]
+        assert running[0] == pytest.approx(0.9 * 0.3)  # the soft start's first step
+        assert max(running) == pytest.approx(0.9)
+        assert running[-1] == pytest.approx(0.45)  # the approach: half power
+        assert rig.winch.overshoots == [0] or rig.winch.overshoots[0] <= 1
+
+
+async def test_a_cast_comes_home_at_the_switch_and_the_count_is_zero() -> None:
+    async with gpio_rig() as rig:
+        rig.winch.move_to(1.5)
+        await rig.settle()
+        rig.winch.move_to(0.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.at_home and status.depth_m == 0.0 and status.fault is None
+        assert rig.winch.pulse_count == 0
+        assert rig.drum.line_m <= MPP / 4
+        assert "winch_count_corrected" not in rig.kinds()
+
+
+async def test_a_switch_to_ground_and_a_pulled_up_sensor_work_the_same() -> None:
+    async with gpio_rig(switch_pull="up", switch_active="low", pulse_pull="up") as rig:
+        assert rig.winch.status().at_home
+        rig.winch.move_to(1.0)
+        await rig.settle()
+        assert abs(rig.winch.status().depth_m - 1.0) <= MPP / 2
+        rig.winch.move_to(0.0)
+        await rig.settle()
+        assert rig.winch.status().at_home and rig.winch.pulse_count == 0
+
+
+async def test_quadrature_encoder_counts_both_ways() -> None:
+    async with gpio_rig(counter="quadrature") as rig:
+        rig.winch.move_to(1.2)
+        await rig.settle()
+        assert abs(rig.winch.status().depth_m - 1.2) <= MPP / 2
+        rig.winch.move_to(0.5)
+        await rig.settle()
+        assert abs(rig.winch.status().depth_m - 0.5) <= MPP / 2
+        assert abs(rig.drum.line_m - 0.5) <= MPP
+        rig.winch.move_to(0.0)
+        await rig.settle()
+        assert rig.winch.status().at_home and rig.winch.pulse_count == 0
+
+
+async def test_never_pays_out_beyond_the_end_of_the_line() -> None:
+    async with gpio_rig(max_line_m=1.0) as rig:
+        rig.winch.move_to(5.0)  # clamped to the line's end
+        await rig.settle()
+        assert rig.winch.status().depth_m <= 1.0 + MPP / 2
+        rig.winch.jog(Direction.PAY_OUT)  # by hand, the end of the line still holds
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and status.fault.startswith("end of line")
+        assert rig.drum.max_line_seen <= 1.0 + MPP
+        assert enable_history(rig)[-1][1] == 0.0
+
+
+async def test_a_jammed_drum_is_a_stall_and_the_motor_goes_off() -> None:
+    async with gpio_rig(faults=DrumFaults(jam_at_m=0.8)) as rig:
+        rig.winch.move_to(3.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and status.fault.startswith("stall: no drum pulse")
+        assert enable_history(rig)[-1][1] == 0.0
+        assert rig.drum.motor() == (0, 0.0)
+        assert ("winch_fault", pytest.approx) and rig.kinds().count("winch_fault") == 1
+
+
+async def test_overcurrent_for_longer_than_allowed_is_a_stall() -> None:
+    async with gpio_rig(adc=True, faults=DrumFaults(overcurrent_a=4.2)) as rig:
+        rig.winch.move_to(3.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and "motor current" in status.fault
+        assert rig.drum.motor() == (0, 0.0)
+        detail = dict(rig.events)["winch_fault"]
+        assert detail["peak_current_a"] == pytest.approx(4.2, abs=0.05)
+
+
+async def test_current_and_supply_are_read_through_the_mcp3008() -> None:
+    async with gpio_rig(adc=True) as rig:
+        assert rig.winch.motor_current_a() == pytest.approx(0.0, abs=0.02)
+        assert rig.winch.supply_v() == pytest.approx(12.0, abs=0.1)
+        rig.winch.jog(Direction.PAY_OUT)
+        await asyncio.sleep(0.3)
+        assert rig.winch.motor_current_a() == pytest.approx(1.2 * 0.9, abs=0.05)
+        rig.winch.stop()
+
+
+async def test_haul_home_gives_up_when_the_switch_never_closes() -> None:
+    async with gpio_rig() as rig:
+        rig.winch.move_to(0.6)
+        await rig.settle()
+        rig.drum.faults.switch_stuck_open = True  # the drum winds on past the block
+        started = time.monotonic()
+        rig.winch.move_to(0.0)
+        await rig.settle()
+        took = time.monotonic() - started
+        status = rig.winch.status()
+        assert status.fault is not None and status.fault.startswith("home not reached")
+        # line out / speed + home_margin_s: 0.6 / 1.0 + 1.0
+        assert 1.5 <= took <= 2.3
+        assert rig.drum.motor() == (0, 0.0)
+
+
+async def test_the_switch_closing_while_paying_out_stops_and_faults() -> None:
+    async with gpio_rig(faults=DrumFaults(snag_at_m=1.0)) as rig:
+        rig.winch.move_to(3.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and "closed while paying out" in status.fault
+        assert 0.9 <= rig.drum.line_m <= 1.0 + MPP
+        assert rig.drum.motor() == (0, 0.0)
+
+
+async def test_lost_pulses_are_corrected_at_the_switch_with_both_figures() -> None:
+    async with gpio_rig(faults=DrumFaults(lose_every=4), count_tolerance_m=0.2) as rig:
+        rig.winch.move_to(3.0)
+        await rig.settle()
+        real = rig.drum.line_m
+        assert real > 3.5  # the count lost a pulse in four: the probe went deeper
+        with structlog.testing.capture_logs() as logs:
+            rig.winch.move_to(0.0)
+            await rig.settle()
+        assert rig.winch.status().at_home and rig.winch.pulse_count == 0
+        # Hauling in, the count reaches home first: it says so, and hauls on.
+        early = next(e for e in logs if "disagree" in e["event"] and e["switch"] == "open")
+        assert early["counted_line_m"] <= 0.0
+        warning = next(e for e in logs if "disagree" in e["event"] and e["switch"] == "closed")
+        assert warning["counted_line_m"] < -0.2  # the pulses lost on the way down
+        corrected = dict(rig.events)["winch_count_corrected"]
+        assert corrected["counted_line_m"] == warning["counted_line_m"]
+        assert corrected["corrected_to_m"] == 0.0
+
+
+async def test_start_up_homing_hauls_a_probe_left_down() -> None:
+    async with gpio_rig(line_m=1.3) as rig:
+        status = rig.winch.status()
+        assert status.at_home and status.fault is None and rig.winch.homed
+        assert rig.kinds()[:2] == ["winch_homing", "winch_homed"]
+        assert rig.drum.line_m <= MPP / 4
+
+
+async def test_without_start_up_homing_casts_are_refused_until_homed_by_hand() -> None:
+    async with gpio_rig(line_m=1.3, home_at_start=False) as rig:
+        status = rig.winch.status()
+        assert not status.at_home and status.fault is not None
+        assert status.fault.startswith("not homed")
+        with pytest.raises(WinchFault, match="not homed"):
+            rig.winch.move_to(2.0)
+        assert rig.drum.motor() == (0, 0.0)
+        rig.winch.jog(Direction.HAUL_IN)  # the operator, with `cc-daemon winch home`
+        await rig.settle()
+        assert rig.winch.homed and rig.winch.status().at_home
+        rig.winch.move_to(0.5)
+        await rig.settle()
+        assert abs(rig.winch.status().depth_m - 0.5) <= MPP / 2
+
+
+async def test_the_loop_watchdog_stops_the_motor_when_the_loop_blocks() -> None:
+    async with gpio_rig() as rig:
+        rig.winch.jog(Direction.PAY_OUT)
+        await asyncio.sleep(0.2)
+        assert rig.drum.motor()[0] == 1
+        blocked_at = time.monotonic()
+        time.sleep(1.2)  # noqa: ASYNC251 - the point: the event loop is stuck
+        off_at = next(t for t, duty in enable_history(rig) if t > blocked_at and duty == 0.0)
+        assert off_at - blocked_at <= 0.5 + 0.1  # loop_watchdog_s, checked 20 times per period
+        assert off_at - blocked_at >= 0.5 - 0.1
+        await asyncio.sleep(0)  # the loop runs again and hears about it
+        await asyncio.sleep(0)
+        status = rig.winch.status()
+        assert status.fault is not None and status.fault.startswith("loop watchdog")
+        assert "winch_fault" in rig.kinds()
+
+
+async def test_an_exception_in_a_check_stops_the_motor(monkeypatch: pytest.MonkeyPatch) -> None:
+    async with gpio_rig() as rig:
+
+        def broken() -> float:
+            raise OSError("SPI bus gone")
+
+        monkeypatch.setattr(rig.winch, "motor_current_a", broken)
+        rig.winch.move_to(3.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and "SPI bus gone" in status.fault
+        assert rig.drum.motor() == (0, 0.0)
+
+
+async def test_close_and_cancellation_leave_the_motor_off() -> None:
+    async with gpio_rig() as rig:
+
+        async def lower() -> None:
+            rig.winch.move_to(5.0)
+            try:
+                await asyncio.sleep(10)
+            finally:
+                rig.winch.stop()
+
+        task = asyncio.create_task(lower())
+        await asyncio.sleep(0.4)
+        assert rig.drum.motor()[0] == 1
+        cancelled_at = time.monotonic()
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        off_at = enable_history(rig)[-1][0]
+        assert enable_history(rig)[-1][1] == 0.0 and off_at - cancelled_at < 0.05
+        rig.winch.jog(Direction.PAY_OUT)
+    assert rig.drum.motor() == (0, 0.0)  # closed while running: off
+
+
+def test_the_motor_is_switched_off_at_interpreter_exit() -> None:
+    script = textwrap.dedent(
+        """
+        import asyncio, atexit
+        from tests.gpiokit import settings
+        from cc_daemon.clock import SystemClock
+        from cc_daemon.winch.devices import open_devices
+        from cc_daemon.winch.gpio import GpioWinch
+        from cc_daemon.winch.mockdrum import SimulatedDrum
+        from cc_daemon.winch.motor import Direction
+
+        cfg = settings()
+        factory = SimulatedDrum.factory_for(cfg)
+        drum = SimulatedDrum(factory, cfg)
+        atexit.register(lambda: print("at exit", drum.motor(), flush=True))
+
+        async def main():
+            winch = GpioWinch(cfg, open_devices(cfg, factory), max_line_m=20, clock=SystemClock())
+            winch.jog(Direction.PAY_OUT)
+            print("running", drum.motor(), flush=True)
+            return winch  # never closed: the process just ends
+
+        keep = asyncio.run(main())
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        check=False,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "running (1, " in done.stdout
+    assert "at exit (0, 0.0)" in done.stdout
+
+
+async def test_the_switch_bouncing_as_the_probe_leaves_is_not_a_snag() -> None:
+    async with gpio_rig() as rig:
+        switch = rig.drum.factory.pin(rig.winch._cfg.switch_pin)
+        rig.drum.close()  # the test moves the pins by hand now
+        rig.winch.jog(Direction.PAY_OUT)
+        switch.drive_low()  # the probe leaves the block...
+        switch.drive_high()  # ...the lever bounces shut...
+        switch.drive_low()  # ...and open again, all within the first pulse
+        await asyncio.sleep(0.05)
+        status = rig.winch.status()
+        assert status.moving and status.fault is None
+        rig.winch.stop()
+
+
+async def test_the_probe_slipping_off_the_block_while_idle_is_logged() -> None:
+    async with gpio_rig() as rig:
+        switch = rig.drum.factory.pin(rig.winch._cfg.switch_pin)
+        rig.drum.close()
+        with structlog.testing.capture_logs() as logs:
+            switch.drive_low()
+            switch.drive_high()  # a bounce: not news
+            await asyncio.sleep(0.2)
+            switch.drive_low()  # it stays open
+            await asyncio.sleep(0.2)
+        slipped = [e for e in logs if "opened with the motor stopped" in e["event"]]
+        assert len(slipped) == 1 and slipped[0]["log_level"] == "warning"
+        assert not rig.winch.status().at_home

@@ -1,0 +1,151 @@
+"""The daemon with a sonde: real pymodbus client and server over ptys, a real journal.
+
+The cast never waits for the sonde: an adapter pulled out mid-cast leaves the
+cast running, its readings recorded as missing with the reason, and the link
+comes back by itself. A probe on the bottom stops the descent.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import random
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from cc_daemon.config import Settings
+from cc_daemon.protocol import Ack, DepthReport, Finished
+from cc_daemon.service import EXIT_OK, Daemon
+from cc_daemon.sim.port import FramePort
+from cc_daemon.sim.pty import PtyPair
+from cc_daemon.sim.sonde import SimulatedSonde
+from cc_daemon.sim.water import SondeModel, WaterColumn
+from cc_daemon.store import JournalReader
+from tests.daemonkit import FAST_CAST, merge, station
+
+FAST_SONDE = {
+    "backend": "modbus",
+    "period_s": 0.25,
+    "idle_period_s": 1.0,
+    "timeout_s": 0.1,
+    "retries": 0,
+    "reconnect_initial_s": 0.1,
+    "reconnect_max_s": 0.3,
+}
+
+
+class Rig:
+    def __init__(self, tmp_path: Path, config: dict[str, Any], model: SondeModel) -> None:
+        self.tmp = tmp_path
+        self.pty = PtyPair(tmp_path / "tty")
+        self.db = tmp_path / "j.db"
+        sonde_path = tmp_path / "ttySONDE"
+        base = merge(FAST_CAST, {"serial": {"port": str(self.pty.path)}})
+        base = merge(base, {"store": {"path": str(self.db)}, "sonde": FAST_SONDE})
+        base = merge(base, {"sonde": {"port": str(sonde_path)}})
+        self.settings = Settings.model_validate(merge(base, config))
+        self.daemon = Daemon(self.settings)
+        self.sonde = SimulatedSonde(sonde_path, line_out=self._line_out, model=model)
+
+    def _line_out(self) -> float:
+        winch = self.daemon._winch
+        return winch.status().depth_m if winch is not None else 0.0
+
+    async def finished(self, port: FramePort, timeout: float) -> list[Any]:
+        messages = []
+        deadline = asyncio.get_running_loop().time() + timeout
+        while asyncio.get_running_loop().time() < deadline:
+            got = await port.receive(0.5)
+            if got is None:
+                continue
+            messages.append(got.message)
+            if isinstance(got.message, Finished):
+                break
+        return messages
+
+
+@pytest.fixture
+async def make_rig(tmp_path: Path) -> AsyncIterator[Any]:
+    made: list[tuple[Rig, FramePort]] = []
+
+    async def factory(config: dict[str, Any], model: SondeModel) -> tuple[Rig, FramePort]:
+        rig = Rig(tmp_path, config, model)
+        rig.sonde.start()
+        port = await FramePort.over_fd(rig.pty.master_fd)
+        made.append((rig, port))
+        return rig, port
+
+    yield factory
+    for rig, port in made:
+        await port.close()
+        rig.sonde.stop()
+        rig.pty.close()
+
+
+async def test_unplugged_sonde_during_a_cast(make_rig: Any) -> None:
+    rig, port = await make_rig({"cast": {"bottom_dwell_s": 3.0}}, SondeModel())
+    task = asyncio.create_task(rig.daemon.run())
+    await asyncio.wait_for(rig.daemon.ready.wait(), 5)
+    await port.send(station())
+    assert (await port.receive(1)).message == Ack(100)  # type: ignore[union-attr]
+    await asyncio.sleep(1.5)
+    rig.sonde.unplug()
+    await asyncio.sleep(1.5)
+    rig.sonde.replug()
+    messages = await rig.finished(port, 20)
+    await asyncio.sleep(0.5)
+    rig.daemon.request_shutdown()
+    assert await asyncio.wait_for(task, 10) == EXIT_OK
+    assert isinstance(messages[-1], Finished)  # the cast went on and ended normally
+    assert sum(isinstance(m, DepthReport) for m in messages) >= 5
+    with JournalReader(rig.db) as reader:
+        (cast,) = reader.casts()
+        rows = reader.sonde_samples(cast_id=cast.id)
+        events = [e.kind for e in reader.events()]
+    assert cast.outcome == "completed"
+    statuses = [r.status for r in rows]
+    first_gap = statuses.index("disconnected")
+    assert "ok" in statuses[:first_gap] and "ok" in statuses[first_gap:]
+    lost = [r for r in rows if r.status == "disconnected"]
+    assert len(lost) >= 3
+    assert all(set(r.values.values()) == {None} for r in lost)  # missing, never 0.0
+    assert all(set(r.missing.values()) == {"disconnected"} for r in lost)
+    assert all(r.sonde_depth_m is None and r.line_out_m is not None for r in lost)
+    ok = [r for r in rows if r.status == "ok"]
+    assert all(r.values["temperature"] is not None for r in ok)
+    assert {r.phase for r in rows} >= {"descending", "ascending"}
+    assert events.count("sonde_port_opened") >= 2 and "sonde_port_lost" in events
+    # The beat: consecutive readings of the cast 0.25 s apart (missed beats skipped, no burst).
+    gaps = [b.mono_s - a.mono_s for a, b in itertools.pairwise(rows)]
+    assert min(gaps) > 0.2
+
+
+async def test_bottom_contact_stops_the_descent(make_rig: Any) -> None:
+    model = SondeModel(WaterColumn(bottom_m=1.5), slant_deg=0.0, rng=random.Random(3))
+    config = {
+        "cast": {"target_depth_m": 6.0, "depth_source": "sonde"},
+        "winch": {"sim": {"speed_m_s": 0.5}},
+        "sonde": {"bottom_contact_s": 1.0, "depth_disagreement_m": 0.3},
+    }
+    rig, port = await make_rig(config, model)
+    task = asyncio.create_task(rig.daemon.run())
+    await asyncio.wait_for(rig.daemon.ready.wait(), 5)
+    await port.send(station(confidence=0))  # no sonar bottom: the sonde is the only guard
+    messages = await rig.finished(port, 30)
+    rig.daemon.request_shutdown()
+    assert await asyncio.wait_for(task, 10) == EXIT_OK
+    assert isinstance(messages[-1], Finished)
+    with JournalReader(rig.db) as reader:
+        (cast,) = reader.casts()
+        events = {e.kind: e.detail for e in reader.events()}
+    assert cast.outcome == "completed"
+    # Stopped about bottom_contact_s after touching, far above the 6 m target.
+    assert cast.reached_depth_m is not None and 1.5 < cast.reached_depth_m < 4.0
+    assert events["bottom_contact"]["sonde_depth_m"] == pytest.approx(1.5, abs=0.05)
+    assert "sonde_depth_disagreement" in events
+    # depth_source = "sonde": R-M says where the probe is, not how much line is out.
+    reported = [m.depth_mm for m in messages if isinstance(m, DepthReport)]
+    assert max(reported) <= 1600

@@ -1,0 +1,148 @@
+"""The sonde reader against pymodbus's own RTU server, over real pseudo-terminals."""
+
+from __future__ import annotations
+
+import asyncio
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from cc_daemon.sim.sonde import SimulatedSonde
+from cc_daemon.sonde.reader import CRC, DISCONNECTED, EXCEPTION, OK, PARTIAL, TIMEOUT, SondeReader
+from cc_daemon.sonde.settings import SondeSettings
+
+# Values whose float bit patterns are easy to recognise on the wire.
+KNOWN = {
+    "depth": 1.0,  # 0x3F800000
+    "temperature": -2.0,  # 0xC0000000
+    "ph": 7.0,  # 0x40E00000
+    "do_saturation": 100.0,  # 0x42C80000
+    "do_concentration": 8.5,  # 0x41080000
+    "blue": 0.5,  # 0x3F000000
+    "chlorophyll": 25.0,  # 0x41C80000
+}
+
+
+class Fixed:
+    def __init__(self) -> None:
+        self.values = dict(KNOWN)
+
+    def read(self, line_out_m: float, t: float) -> dict[str, float]:
+        return dict(self.values)
+
+
+def settings(path: Path, **kw: object) -> SondeSettings:
+    base: dict[str, object] = {
+        "backend": "modbus",
+        "port": str(path),
+        "timeout_s": 0.2,
+        "retries": 0,
+        "reconnect_initial_s": 0.05,
+        "reconnect_max_s": 0.2,
+    }
+    return SondeSettings.model_validate(base | kw)
+
+
+@pytest.fixture
+def sonde(tmp_path: Path) -> Iterator[SimulatedSonde]:
+    with SimulatedSonde(tmp_path / "ttySONDE", line_out=lambda: 0.0, model=Fixed()) as sim:
+        yield sim
+
+
+async def test_word_order_known_bit_patterns_on_the_wire(sonde: SimulatedSonde) -> None:
+    reader = SondeReader(settings(sonde.path))
+    try:
+        reading = await reader.read()
+    finally:
+        await reader.close()
+    assert reading.status == OK and reading.missing == {}
+    assert reading.values == KNOWN
+    reply = sonde.last_reply
+    # slave 80, function 3, 60 data bytes, then register 40011 onwards, high word first.
+    assert reply[:3] == bytes([80, 3, 60])
+    data = reply[3:-2]
+    assert data[0:4] == bytes.fromhex("3F800000")  # 40011 depth
+    assert data[36:40] == bytes.fromhex("C0000000")  # 40029 temperature: (40029-40011)*2
+    assert data[56:60] == bytes.fromhex("41C80000")  # 40039 chlorophyll
+    assert struct.unpack(">f", data[40:44])[0] == 7.0  # 40031 pH
+
+
+async def test_one_block_request_per_sample(sonde: SimulatedSonde) -> None:
+    reader = SondeReader(settings(sonde.path))
+    try:
+        readings = [await reader.read() for _ in range(3)]
+    finally:
+        await reader.close()
+    assert [r.requests for r in readings] == [1, 1, 1]
+    assert sonde.requests == 3
+    assert all(0.0 < r.duration_s < 0.2 for r in readings)
+
+
+@pytest.mark.parametrize(
+    ("fault", "status"),
+    [("timeout", TIMEOUT), ("crc", CRC), ("exception", EXCEPTION)],
+)
+async def test_failed_reads_are_missing_values_with_reasons(
+    sonde: SimulatedSonde, fault: str, status: str
+) -> None:
+    reader = SondeReader(settings(sonde.path, retries=1))
+    try:
+        assert (await reader.read()).status == OK
+        sonde.fault = fault  # type: ignore[assignment]
+        bad = await reader.read()
+        sonde.fault = None
+        good = await reader.read()
+    finally:
+        await reader.close()
+    assert bad.status == status
+    assert bad.values == dict.fromkeys(KNOWN)  # None, never 0.0
+    assert bad.missing == dict.fromkeys(KNOWN, status)
+    assert bad.error
+    if fault != "exception":  # a reply that never arrives is asked again once
+        assert bad.requests == 2
+    assert good.status == OK and good.values == KNOWN
+
+
+async def test_nan_is_missing_not_zero(sonde: SimulatedSonde) -> None:
+    reader = SondeReader(settings(sonde.path))
+    sonde.fault = "nan"
+    try:
+        reading = await reader.read()
+    finally:
+        await reader.close()
+    assert reading.status == PARTIAL
+    assert reading.values["depth"] == 1.0
+    assert reading.values["temperature"] is None
+    assert reading.missing == {name: "nan" for name in KNOWN if name != "depth"}
+
+
+async def test_unplugged_adapter_is_reopened(sonde: SimulatedSonde) -> None:
+    reader = SondeReader(settings(sonde.path))
+    try:
+        assert (await reader.read()).status == OK
+        sonde.unplug()
+        down = [await reader.read() for _ in range(3)]
+        assert all(r.status == DISCONNECTED for r in down)
+        assert all(r.values == dict.fromkeys(KNOWN) for r in down)
+        assert not reader.up and reader.losses == 1
+        sonde.replug()
+        for _ in range(40):
+            reading = await reader.read()
+            if reading.status == OK:
+                break
+            await asyncio.sleep(0.05)
+        assert reading.status == OK and reading.values == KNOWN
+        assert reader.up and reader.opens == 2
+    finally:
+        await reader.close()
+
+
+async def test_a_port_that_is_not_there_is_retried_with_backoff(tmp_path: Path) -> None:
+    reader = SondeReader(settings(tmp_path / "nothing-here"))
+    readings = [await reader.read() for _ in range(3)]
+    assert [r.status for r in readings] == [DISCONNECTED] * 3
+    assert readings[0].error and "nothing-here" in readings[0].error
+    assert all(r.duration_s < 0.1 for r in readings)  # a cast never waits for a missing sonde
+    await reader.close()
