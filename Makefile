@@ -6,8 +6,13 @@ BIN := $(VENV)/bin
 BASE_STAMP := $(VENV)/.installed-base
 TEST_STAMP := $(VENV)/.installed-test
 BENCH_STAMP := $(VENV)/.installed-bench
+# The plot and NetCDF extras (matplotlib, netCDF4: about 215 MB) are for the laptop,
+# not the Pi's service: `make simulate` installs them so the first hour needs no pip.
+EXTRAS_STAMP := $(VENV)/.installed-extras
+# The journal `make export` and `make plot` read: the simulator's, by default.
+DB ?= simulate.db
 
-.PHONY: unit-tools test lint typecheck pytest simulate bench clean install uninstall
+.PHONY: unit-tools test lint typecheck pytest simulate extras export plot bench clean install uninstall
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "cc-daemon needs Python >= 3.11; set PYTHON=python3.11")'
@@ -18,13 +23,17 @@ $(BASE_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
 	@touch $@
 
+$(EXTRAS_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[plot,netcdf]'
+	@touch $@ $(BASE_STAMP)
+
 $(TEST_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test]'
-	@touch $@ $(BASE_STAMP)
+	@touch $@ $(BASE_STAMP) $(EXTRAS_STAMP)
 
 $(BENCH_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
-	@touch $@ $(TEST_STAMP) $(BASE_STAMP)
+	@touch $@ $(TEST_STAMP) $(BASE_STAMP) $(EXTRAS_STAMP)
 
 test: lint typecheck pytest
 
@@ -46,8 +55,21 @@ unit-tools:
 pytest: $(TEST_STAMP) unit-tools
 	$(BIN)/pytest -n 2 $(PYTEST_ARGS)
 
-simulate: $(BASE_STAMP)
+simulate: $(EXTRAS_STAMP)
 	$(BIN)/cc-daemon --simulate $(ARGS)
+
+extras: $(EXTRAS_STAMP)
+
+# CSV samples, GeoJSON and NetCDF of $(DB), beside it: simulate.csv, .geojson, .nc
+export: $(EXTRAS_STAMP)
+	$(BIN)/cc-daemon export --db $(DB) --format csv -o $(basename $(DB)).csv
+	$(BIN)/cc-daemon export --db $(DB) --format geojson -o $(basename $(DB)).geojson
+	$(BIN)/cc-daemon export --db $(DB) --format netcdf -o $(basename $(DB)).nc
+
+# The survey map of $(DB) (simulate-survey.png); with CAST=N, cast N too.
+plot: $(EXTRAS_STAMP)
+	$(BIN)/cc-daemon plot --db $(DB) --survey -o $(basename $(DB))-survey.png
+	$(if $(CAST),$(BIN)/cc-daemon plot --db $(DB) --cast $(CAST) -o $(basename $(DB))-cast-$(CAST).png)
 
 bench: $(BENCH_STAMP)
 	$(BIN)/python -m benchmarks

@@ -4,6 +4,7 @@
     cc-daemon --simulate [...]               a whole survey against a simulated autopilot
     cc-daemon decode ...                     read frames: hex, a capture on stdin, a live port
     cc-daemon casts | export | plot          the survey journal
+    cc-daemon snapshot DEST                  a consistent copy of the journal, even while running
     cc-daemon sonde export | plot            the sonde's readings and profiles
     cc-daemon simulate-autopilot --port P    the simulated autopilot alone, on a real port
     cc-daemon status [--json|--watch]        ask the running daemon what it is doing
@@ -12,8 +13,9 @@
     cc-daemon winch status|home|down|up      the GPIO winch by hand (jog, home, calibrate)
     cc-daemon simulate-sonar --port P        the simulated Ping1D echosounder alone
 
-Exit status: 0 success; 1 a tool found problems (corrupt frames, a failed
-survey); 2 bad usage or configuration (nothing was opened); 130 the daemon was
+Exit status: 0 success; 1 a tool found problems (corrupt frames, a protocol
+violation); 2 bad usage or configuration (nothing was opened); 3 a simulated
+survey kept the protocol but left a station unmeasured; 130 the daemon was
 stopped at once by a second Ctrl-C and the probe may be down.
 """
 
@@ -157,7 +159,8 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
 def build_parser() -> argparse.ArgumentParser:
     from cc_daemon import datacli, sondecli, winchcli
     from cc_daemon.doctor import cli as doctor_cli
-    from cc_daemon.sim import runner, sonar_cli
+    from cc_daemon.sim import commands as simulator
+    from cc_daemon.sim import sonar_cli
     from cc_daemon.sim import sondecli as simulate_sonde
     from cc_daemon.status import cli as status_cli
 
@@ -173,11 +176,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a whole survey against a simulated autopilot over a pty pair",
     )
     _add_daemon_options(parser)
-    runner.add_simulate_arguments(parser)
+    simulator.add_simulate_arguments(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_decode(sub)
     datacli.add_commands(sub)
-    runner.add_commands(sub)
+    simulator.add_commands(sub)
     status_cli.add_commands(sub)
     doctor_cli.add_commands(sub)
     sondecli.add_command(sub)
@@ -298,7 +301,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             code: int = handler(args)
             return code
         if args.simulate:
-            from cc_daemon.sim.runner import run_from_args
+            from cc_daemon.sim.commands import run_from_args
 
             return run_from_args(args, _load(args))
         return _run_daemon(args)

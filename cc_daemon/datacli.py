@@ -1,15 +1,16 @@
-"""The data commands of `cc-daemon`: `casts`, `export` and `plot`.
+"""The data commands of `cc-daemon`: `casts`, `export`, `plot` and `snapshot`.
 
 This module owns the command-line surface for getting data out of the
 journal: the arguments, which records each command takes, which writer it
 calls, its messages and its exit status (0 done; 1 the journal, the data or an
 optional package was not there; 2 the arguments were wrong). `add_commands`
-registers the three commands on the main `cc-daemon` parser, each with a
+registers the four commands on the main `cc-daemon` parser, each with a
 `handler(args) -> int`; `main` runs them alone (`python -m cc_daemon.datacli`).
 
 It reads the journal only through `JournalReader`, which opens the file
 read-only: these commands are safe to run while the daemon is recording, and
-never create, migrate or repair a journal.
+never create, migrate or repair a journal (`snapshot` writes only its new copy).
+Each says on stderr which journal it read.
 """
 
 from __future__ import annotations
@@ -55,13 +56,21 @@ def _cast_id(text: str) -> int:
 
 
 SERVICE_JOURNAL = Path("/var/lib/cc-daemon/cc-daemon.db")  # StateDirectory= of the unit
+SIMULATOR_JOURNAL = Path("simulate.db")  # `cc-daemon --simulate`'s default --db
 
 
 def journal_path(args: argparse.Namespace) -> Path:
-    """The journal to read: `--db`; else where this machine's daemon writes it:
-    `store.path` from its configuration (the same file and environment lookup),
-    else the systemd service's state directory if a journal is there, else the
-    default location."""
+    """The journal to read, said on stderr: `--db`; else where this machine's daemon
+    writes it: `store.path` from its configuration (the same file and environment
+    lookup), else the systemd service's state directory if a journal is there, else
+    the default location if one is there, else the simulator's `./simulate.db`
+    if that is the one here."""
+    path = _find_journal(args)
+    print(f"reading {path}", file=sys.stderr)
+    return path
+
+
+def _find_journal(args: argparse.Namespace) -> Path:
     if args.db is not None:
         return Path(args.db)
     try:
@@ -73,7 +82,10 @@ def journal_path(args: argparse.Namespace) -> Path:
         return configured
     if "STATE_DIRECTORY" not in os.environ and SERVICE_JOURNAL.exists():
         return SERVICE_JOURNAL
-    return default_store_path()
+    default = default_store_path()
+    if not default.exists() and SIMULATOR_JOURNAL.exists():
+        return SIMULATOR_JOURNAL
+    return default
 
 
 def add_commands(
@@ -81,7 +93,7 @@ def add_commands(
     *,
     default_db: Path | None = None,
 ) -> None:
-    """Register `casts`, `export` and `plot`; each sets `handler` to call with the args.
+    """Register `casts`, `export`, `plot` and `snapshot`; each sets `handler` to call with the args.
 
     `--db` defaults to `default_db` if given, else it is resolved when the
     command runs (`journal_path`).
@@ -91,7 +103,8 @@ def add_commands(
         f"the journal file (default: {db})"
         if db is not None
         else "the journal file (default: the configured store.path, else "
-        f"{SERVICE_JOURNAL} if it exists, else ./cc-daemon.db)"
+        f"{SERVICE_JOURNAL} if it exists, else ./cc-daemon.db, else ./{SIMULATOR_JOURNAL} "
+        "if it exists; the file read is said on stderr)"
     )
     since_help = "only data from this UTC time on (ISO 8601, e.g. 2024-05-01T10:00Z)"
 
@@ -131,7 +144,7 @@ def add_commands(
 
     plot = subparsers.add_parser(
         "plot",
-        help="plot a cast or the survey as a PNG",
+        help="plot a cast or the survey (PNG, PDF or SVG)",
         description="Plot one cast (depth against time, phases shaded) or the survey (track"
         " coloured by sonar depth, stations). Needs the 'plot' extra (matplotlib).",
     )
@@ -140,8 +153,31 @@ def add_commands(
     which.add_argument("--cast", type=_cast_id, metavar="N", help="plot cast N")
     which.add_argument("--survey", action="store_true", help="plot the whole survey")
     plot.add_argument("--since", type=_since, metavar="TIME", help=f"with --survey: {since_help}")
-    plot.add_argument("-o", "--output", type=Path, metavar="FILE", required=True, help="PNG file")
+    plot.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        metavar="FILE",
+        required=True,
+        help="the image: its extension says the format (.png, .pdf or .svg)",
+    )
     plot.set_defaults(handler=_run_plot)
+
+    snapshot = subparsers.add_parser(
+        "snapshot",
+        help="copy the journal consistently, even while the daemon writes it",
+        description="Copy the survey journal into one self-contained file with SQLite's online"
+        " backup: safe while the service runs, and what to do before pulling the SD card or"
+        " copying the data over SSH. Prints what it copied. Never overwrites a file.",
+    )
+    snapshot.add_argument(
+        "dest",
+        type=Path,
+        metavar="DEST",
+        help="the new file (refused if it exists), or a directory to put a dated copy in",
+    )
+    snapshot.add_argument("--db", type=Path, default=db, metavar="PATH", help=db_help)
+    snapshot.set_defaults(handler=_run_snapshot)
 
 
 def _guarded(name: str, run: Handler, args: argparse.Namespace) -> int:
@@ -169,6 +205,26 @@ def _run_export(args: argparse.Namespace) -> int:
 
 def _run_plot(args: argparse.Namespace) -> int:
     return _guarded("plot", _plot, args)
+
+
+def _run_snapshot(args: argparse.Namespace) -> int:
+    return _guarded("snapshot", _snapshot, args)
+
+
+def _snapshot(args: argparse.Namespace) -> int:
+    from cc_daemon.store.snapshot import take_snapshot
+
+    db = journal_path(args)
+    try:
+        report = take_snapshot(db, args.dest)
+    except FileExistsError as exc:
+        raise _UsageError(f"{exc.filename} exists: refusing to overwrite it") from None
+    print(report.describe())
+    return 0
+
+
+def _plural(count: int, noun: str) -> str:
+    return f"{count} {noun}" if count == 1 else f"{count} {noun}s"
 
 
 def _number(value: float | None, width: int, digits: int) -> str:
@@ -242,13 +298,13 @@ def _export(args: argparse.Namespace) -> int:
                 casts = reader.casts(cast_id=args.cast, since=args.since)
                 samples = reader.samples(cast_id=args.cast)
                 count = netcdf.write(casts, samples, args.output)
-                noun = f"{len(casts)} casts, {count} samples"
+                noun = f"{_plural(len(casts), 'cast')}, {_plural(count, 'sample')}"
             elif args.format == "geojson":
                 casts = reader.casts(cast_id=args.cast, since=args.since)
                 fixes = reader.fixes(cast_id=args.cast, since=args.since)
                 with _output(args.output) as out:
                     count = geojson.write(casts, fixes, out)
-                noun = f"{count} features"
+                noun = _plural(count, "feature")
             else:
                 with _output(args.output, newline="") as out:
                     if what == "samples":
@@ -266,7 +322,7 @@ def _export(args: argparse.Namespace) -> int:
                         )
                     else:
                         count = csv.write_events(reader.events(since=args.since), out)
-                noun = f"{count} {what} rows"
+                noun = f"{_plural(count, 'row')} of {what}"
     except BrokenPipeError:
         # The reader of our stdout left (`| head`): not an error. Point stdout
         # at /dev/null so the interpreter's final flush does not complain.
@@ -282,6 +338,10 @@ def _plot(args: argparse.Namespace) -> int:
 
     if args.since is not None and not args.survey:
         raise _UsageError("--since applies to --survey only")
+    try:
+        plot.output_format(args.output)
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
     db = journal_path(args)
     with JournalReader(db) as reader:
         if args.survey:

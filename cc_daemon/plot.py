@@ -2,9 +2,12 @@
 
 This module owns the two figures of `cc-daemon plot`: a cast (probe depth
 against time since the cast started, depth increasing downward, the phases
-shaded, the planned depth and the sonar's bottom drawn as lines) and a survey
-(the boat's track coloured by the sonar's water depth, the stations marked
-with the depth each cast reached).
+shaded, the planned depth and the sonar's bottom drawn as lines, the legend
+outside the axes so it hides no data) and a survey (the boat's track coloured
+by the sonar's water depth, each station marked by how its cast ended: a
+measured one with the depth it reached, a skipped, aborted or unfinished one
+unmistakably otherwise). The file format follows the output's extension
+(PNG, PDF or SVG); any other is refused before anything is drawn.
 
 matplotlib is the optional `plot` extra: it is imported when a plot is drawn,
 never when this module is imported, and a missing one raises
@@ -32,6 +35,35 @@ PHASE_COLOURS = {
     "stranded": "#bc80bd",
 }
 DPI = 120
+FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg"}
+
+# How a station looks on the survey map, by its cast's outcome: only a measured
+# one is a filled red triangle; the others are hollow or crossed, and say why.
+_STATIONS: dict[str, tuple[str, dict[str, Any]]] = {
+    "completed": ("measured", {"marker": "v", "color": "crimson", "edgecolors": "black"}),
+    "skipped-shallow": (
+        "skipped: too shallow",
+        {"marker": "o", "facecolors": "none", "edgecolors": "0.35", "linewidths": 1.5},
+    ),
+    "aborted": ("aborted", {"marker": "X", "color": "darkorange", "edgecolors": "black"}),
+    "unfinished": (
+        "unfinished: no R-F (the probe may have stayed down)",
+        {"marker": "X", "color": "darkviolet", "edgecolors": "black"},
+    ),
+    "running": (
+        "running",
+        {"marker": "v", "facecolors": "none", "edgecolors": "crimson", "linewidths": 1.5},
+    ),
+}
+
+
+def output_format(path: Path) -> str:
+    """The image format `path`'s extension asks for; ValueError for any other."""
+    fmt = FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        known = ", ".join(FORMATS)
+        raise ValueError(f"{path}: the extension says which format to write; one of {known}")
+    return fmt
 
 
 def _figure(width_in: float, height_in: float) -> Any:
@@ -58,7 +90,13 @@ def _phase_spans(times: Sequence[float], phases: Sequence[str]) -> list[tuple[st
 
 
 def plot_cast(cast: CastRecord, samples: Sequence[SampleRecord], path: Path) -> None:
-    """Write a PNG of cast `cast`'s depth against time to `path`."""
+    """Write a figure of cast `cast`'s depth against time to `path` (PNG, PDF or SVG)."""
+    fmt = output_format(path)
+    cast_figure(cast, samples).savefig(path, dpi=DPI, format=fmt)
+
+
+def cast_figure(cast: CastRecord, samples: Sequence[SampleRecord]) -> Any:
+    """The cast's figure (a matplotlib `Figure`), not yet written anywhere."""
     if not samples:
         raise ValueError(f"cast {cast.id} has no depth samples to plot")
     fig = _figure(8.0, 4.5)
@@ -98,16 +136,19 @@ def plot_cast(cast: CastRecord, samples: Sequence[SampleRecord], path: Path) -> 
     ax.set_ylabel("depth (m)")
     clock = "" if cast.start_clock_synced else " (clock not synchronised)"
     ax.set_title(
-        f"Cast {cast.id} · {_when(cast.start_wall_s)}{clock} · {cast.outcome or 'running'}"
-        f" · reached {_metres(cast.reached_depth_m)}"
+        f"Cast {cast.id} · {cast.outcome or 'running'} · reached {_metres(cast.reached_depth_m)}"
+        f"\n{_when(cast.start_wall_s)}{clock}"
     )
     ax.grid(True, alpha=0.3)
-    ax.legend(handles=handles, loc="lower left", fontsize="small", framealpha=0.9)
-    fig.savefig(path, dpi=DPI, format="png")
+    # Beside the axes, never on them: every corner of a cast holds data (the
+    # descent, the dwell at the bottom, the way up).
+    fig.legend(handles=handles, loc="outside right upper", fontsize="small")
+    return fig
 
 
 def plot_survey(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], path: Path) -> None:
-    """Write a PNG map of the track (coloured by sonar depth) and the stations to `path`."""
+    """Write a map of the track (coloured by sonar depth) and the stations to `path`."""
+    fmt = output_format(path)
     if not fixes and not casts:
         raise ValueError("the journal holds no track and no cast to plot")
     lons = [f.lon_deg for f in fixes] + [c.lon_deg for c in casts]
@@ -138,42 +179,57 @@ def plot_survey(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], path: P
                 [f.lat_deg for f in sounded],
                 c=[f.sonar_distance_m for f in sounded],
                 cmap="viridis_r",
-                s=6,
+                s=20,
                 lw=0,
                 zorder=2,
             )
             fig.colorbar(points, ax=ax, label="water depth from the sonar (m)", shrink=0.8)
-    if casts:
-        ax.scatter(
-            [c.lon_deg for c in casts],
-            [c.lat_deg for c in casts],
-            marker="v",
-            s=60,
-            color="crimson",
-            edgecolors="black",
-            zorder=3,
-            label="station: cast id, reached depth",
-        )
-        for c in casts:
-            ax.annotate(
-                f"#{c.id} {_metres(c.reached_depth_m)}",
-                (c.lon_deg, c.lat_deg),
-                xytext=(5, 4),
-                textcoords="offset points",
-                fontsize="x-small",
-                zorder=4,
+    for outcome, (label, style) in _STATIONS.items():
+        these = [c for c in casts if (c.outcome or "running") == outcome]
+        if these:
+            ax.scatter(
+                [c.lon_deg for c in these],
+                [c.lat_deg for c in these],
+                s=70,
+                zorder=3,
+                label=f"station, {label}",
+                **style,
             )
+    for c in casts:
+        ax.annotate(
+            _station_label(c),
+            (c.lon_deg, c.lat_deg),
+            xytext=(6, 4),
+            textcoords="offset points",
+            fontsize="x-small",
+            zorder=4,
+        )
     ax.set_aspect(aspect)
     ax.xaxis.set_major_locator(MaxNLocator(5))
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.set_xlabel("longitude (°E)")
     ax.set_ylabel("latitude (°N)")
-    first = min([f.wall_s for f in fixes] + [c.start_wall_s for c in casts])
-    ax.set_title(f"Survey from {_when(first)}\n{len(fixes)} fixes, {len(casts)} casts")
+    times = [f.wall_s for f in fixes] + [c.start_wall_s for c in casts]
+    times += [c.end_wall_s for c in casts if c.end_wall_s is not None]
+    ax.set_title(
+        f"Survey {_when(min(times))} to {_when(max(times))}\n{len(fixes)} fixes, {len(casts)} casts"
+    )
     ax.grid(True, alpha=0.3)
     # Below the axis label, not on it: constrained layout makes room for it.
     fig.legend(loc="outside lower center", ncols=2, fontsize="small")
-    fig.savefig(path, dpi=DPI, format="png")
+    fig.savefig(path, dpi=DPI, format=fmt)
+
+
+def _station_label(cast: CastRecord) -> str:
+    """`#3 2.69 m` for a measured cast; the outcome spelled out for any other."""
+    outcome = cast.outcome or "running"
+    if outcome == "completed":
+        return f"#{cast.id} {_metres(cast.reached_depth_m)}"
+    if outcome == "skipped-shallow":
+        return f"#{cast.id} skipped"
+    reached = cast.reached_depth_m
+    depth = f" at {_metres(reached)}" if reached else ""
+    return f"#{cast.id} {outcome}{depth}"
 
 
 def _when(wall_s: float) -> str:

@@ -565,7 +565,12 @@ class Daemon:
             return
         done = self._stations.recently_done(station, now)
         if done is not None:
-            _log.info("station already done: repeating R-F", cast_id=done.cast_id)
+            _log.info(
+                "station repeated within the re-arm window: repeating R-F, no new cast",
+                cast_id=done.cast_id,
+                since_s=round(now - done.finished_at, 1),
+                rearm_s=self.settings.cast.rearm_s,
+            )
             self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
             return
         bottom = station
@@ -736,8 +741,12 @@ class Daemon:
     def _phase_changed(self, cast: _ActiveCast, old: Phase, new: Phase, reason: str | None) -> None:
         depth = round(cast.machine.depth_m, 3)
         if new is Phase.ABORTING:
-            _log.error(
-                "cast aborted: bringing the probe home",
+            # A requested stop (systemctl restart, Ctrl-C) is routine, not an error.
+            requested = self._shutting_down and not cast.machine.winch_fault
+            (_log.warning if requested else _log.error)(
+                "cast cut short by a requested shutdown: bringing the probe home"
+                if requested
+                else "cast aborted: bringing the probe home",
                 cast_id=cast.cast_id,
                 reason=reason,
                 depth_m=depth,

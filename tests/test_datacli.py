@@ -121,7 +121,7 @@ def test_export_samples_csv_to_stdout_and_telemetry_to_a_file(
         run("export", "--db", str(db), "--format", "csv", "--what", "telemetry", "-o", str(out))
         == 0
     )
-    assert f"wrote {summary.fixes} telemetry rows to {out}" in capsys.readouterr().err
+    assert f"wrote {summary.fixes} rows of telemetry to {out}" in capsys.readouterr().err
     with out.open(newline="") as f:
         assert len(list(csv.DictReader(f))) == summary.fixes
 
@@ -177,6 +177,7 @@ def test_export_geojson_and_netcdf_files(
         (["export", "--format", "csv", "--cast", "99"], 1, "no cast 99 in"),
         (["plot", "--cast", "1", "-o", "x.png"], 1, "cast 1 has no depth samples"),
         (["plot", "--cast", "2", "--since", "2024-01-01", "-o", "x.png"], 2, "--since applies"),
+        (["plot", "--survey", "-o", "x.jpg"], 2, "x.jpg: the extension says which format"),
     ],
 )
 def test_usage_and_data_errors_are_one_line_and_a_status(
@@ -190,9 +191,14 @@ def test_usage_and_data_errors_are_one_line_and_a_status(
     assert run(*argv, "--db", str(db)) == status
     captured = capsys.readouterr()
     assert captured.out == ""
-    assert captured.err.startswith(f"cc-daemon {argv[0]}: ")
-    assert message in captured.err
-    assert captured.err.count("\n") == 1
+    reading, *rest = captured.err.splitlines()
+    if status == 1:  # the arguments made sense: the journal was opened, and said so
+        assert reading == f"reading {db}"
+    else:
+        rest = [reading, *rest]
+    assert len(rest) == 1
+    assert rest[0].startswith(f"cc-daemon {argv[0]}: ")
+    assert message in rest[0]
 
 
 def test_a_missing_journal_or_a_bad_time_is_reported(
@@ -227,7 +233,8 @@ def test_plot_writes_pngs_or_says_what_is_missing(
     assert run("plot", "--db", str(db), "--survey", "-o", str(tmp_path / "no.png")) == 1
     err = capsys.readouterr().err
     assert "needs the optional package 'matplotlib'" in err
-    assert "pip install 'cc-daemon[plot]'" in err
+    assert f"{sys.executable} -m pip install 'matplotlib>=3.8'" in err
+    assert "make extras" in err
 
 
 def test_export_reads_a_journal_the_daemon_is_writing(
@@ -300,3 +307,36 @@ def test_db_defaults_to_the_configured_or_the_systemd_path(
     fixed = argparse.ArgumentParser(prog="cc-daemon")
     datacli.add_commands(fixed.add_subparsers(dest="command"), default_db=tmp_path / "c.db")
     assert datacli.journal_path(fixed.parse_args(["casts"])) == tmp_path / "c.db"
+
+
+def test_beside_a_fresh_simulate_db_the_commands_read_it_and_say_so(
+    survey: tuple[Path, SurveySummary],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.chdir(tmp_path)  # no configuration, no ./cc-daemon.db
+    monkeypatch.delenv("STATE_DIRECTORY", raising=False)
+    monkeypatch.setattr(datacli, "SERVICE_JOURNAL", tmp_path / "no-service" / "cc-daemon.db")
+    db, _ = survey
+    assert run("casts") == 1  # nothing here yet: the error names the file it looked for
+    assert capsys.readouterr().err.startswith("reading cc-daemon.db\n")
+    (tmp_path / "simulate.db").write_bytes(db.read_bytes())  # what `make simulate` leaves
+    assert run("casts", "--db", str(db)) == 0
+    expected = capsys.readouterr().out
+    assert run("casts") == 0
+    captured = capsys.readouterr()
+    assert captured.err == "reading simulate.db\n"
+    assert captured.out == expected
+    # The service's own journal, when this machine has one, is still the one read.
+    service = tmp_path / "service" / "cc-daemon.db"
+    service.parent.mkdir()
+    service.write_bytes(db.read_bytes())
+    monkeypatch.setattr(datacli, "SERVICE_JOURNAL", service)
+    assert run("export", "--format", "csv", "--what", "telemetry", "-o", "t.csv") == 0
+    assert capsys.readouterr().err.startswith(f"reading {service}\n")
+    # So is ./cc-daemon.db, the daemon's default.
+    monkeypatch.setattr(datacli, "SERVICE_JOURNAL", tmp_path / "no-service" / "cc-daemon.db")
+    (tmp_path / "cc-daemon.db").write_bytes(db.read_bytes())
+    assert run("casts") == 0
+    assert capsys.readouterr().err == "reading cc-daemon.db\n"

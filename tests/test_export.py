@@ -195,10 +195,11 @@ def test_netcdf_follows_the_cf_profile_conventions(
         assert nc["time"].units == "seconds since 1970-01-01 00:00:00 UTC"
         assert nc["lat"].standard_name == "latitude" and nc["lon"].units == "degrees_east"
         assert nc["depth"].positive == "down" and nc["depth"].axis == "Z"
-        assert nc["phase"].coordinates == "time lat lon depth"
+        assert nc["phase"].coordinates == "obs_time lat lon depth"
+        assert nc["obs_time"].standard_name == "time"
         assert list(nc["profile"][:]) == [c.id for c in casts]
-        assert list(nc["time"][:]) == [c.start_wall_s for c in casts]
-        assert list(nc["lat"][:]) == [c.lat_deg for c in casts]
+        assert list(nc["time"][:]) == [round(c.start_wall_s, 3) for c in casts]
+        assert list(nc["lat"][:]) == [round(c.lat_deg, 7) for c in casts]
         row_size = list(nc["row_size"][:])
         assert row_size == [c.samples for c in casts]
         outcomes = nc["outcome"].flag_meanings.split()
@@ -209,7 +210,7 @@ def test_netcdf_follows_the_cf_profile_conventions(
         start = 0
         for cast, size in zip(casts, row_size, strict=True):
             mine = [s for s in samples if s.cast_id == cast.id]
-            assert list(depth[start : start + size]) == pytest.approx([s.depth_m for s in mine])
+            assert list(depth[start : start + size]) == [round(s.depth_m, 3) for s in mine]
             assert [phases[p] for p in phase[start : start + size]] == [s.phase for s in mine]
             start += size
         assert list(nc["reached_depth"][:]) == pytest.approx([c.reached_depth_m for c in casts])
@@ -221,6 +222,81 @@ def test_netcdf_needs_its_extra_and_a_cast(
     with pytest.raises(ValueError, match="no casts"):
         netcdf.write([], [], tmp_path / "empty.nc")
     monkeypatch.setitem(sys.modules, "netCDF4", None)  # import netCDF4 now fails
-    with pytest.raises(OptionalDependencyError, match=r"pip install 'cc-daemon\[netcdf\]'"):
+    with pytest.raises(OptionalDependencyError, match=r"-m pip install 'netCDF4>=1.6'"):
         netcdf.write([], [], tmp_path / "x.nc")
     assert not (tmp_path / "x.nc").exists()
+
+
+def _cf_problems(path: Path, tmp_path: Path) -> list[str]:
+    """What the IOOS compliance checker's CF 1.8 suite says about `path`, strictly:
+    every message of every priority (an empty list is a clean file)."""
+    runner = pytest.importorskip("compliance_checker.runner")
+    runner.CheckSuite().load_all_available_checkers()
+    report = tmp_path / f"{path.stem}-cf.json"
+    passed, errors = runner.ComplianceChecker.run_checker(
+        str(path), ["cf:1.8"], 0, "strict", output_filename=str(report), output_format="json"
+    )
+    assert not errors
+    (result,) = json.loads(report.read_text()).values()
+    problems = [f"{c['name']}: {m}" for c in result["all_priorities"] for m in c["msgs"]]
+    assert passed == (not problems) or problems
+    if result["scored_points"] != result["possible_points"]:
+        problems.append(f"scored {result['scored_points']} of {result['possible_points']}")
+    return problems
+
+
+def test_netcdf_passes_the_cf_checker_and_a_spoiled_file_does_not(
+    survey: tuple[Path, SurveySummary], tmp_path: Path
+) -> None:
+    netCDF4 = pytest.importorskip("netCDF4")
+    db, _ = survey
+    path = tmp_path / "casts.nc"
+    with JournalReader(db) as reader:
+        netcdf.write(reader.casts(), reader.samples(), path)
+    assert _cf_problems(path, tmp_path) == []
+    # The checker is not a rubber stamp: the same file with a unit CF cannot parse fails.
+    spoiled = tmp_path / "spoiled.nc"
+    spoiled.write_bytes(path.read_bytes())
+    with netCDF4.Dataset(spoiled, "a") as nc:
+        nc["depth"].units = "fathoms please"
+        del nc["obs_time"].standard_name
+    problems = _cf_problems(spoiled, tmp_path)
+    assert any("depth" in p for p in problems), problems
+
+
+def test_exports_carry_each_quantity_at_its_real_precision(
+    survey: tuple[Path, SurveySummary], tmp_path: Path
+) -> None:
+    netCDF4 = pytest.importorskip("netCDF4")
+    db, _ = survey
+    with JournalReader(db) as reader:
+        cast = reader.casts(cast_id=2)[0]
+        samples = reader.samples(cast_id=2)
+        fix = reader.fixes(cast_id=2)[0]
+    noisy = 0.1 + 0.044  # 0.14400000000000002: what float arithmetic leaves behind
+    cast = cast._replace(
+        planned_depth_m=noisy,
+        reached_depth_m=noisy,
+        water_depth_m=3 * 1.1,
+        lat_deg=40.45063081234,
+        lon_deg=-3.72605791234,
+    )
+    samples = [samples[0]._replace(depth_m=noisy), *samples[1:]]
+    fix = fix._replace(sonar_distance_m=3 * 1.1, lat_deg=40.45063081234)
+    text = json.dumps(geojson.feature_collection([cast], [fix, fix]))
+    assert "0.14400000000000002" not in text and "3.3000000000000003" not in text
+    doc = json.loads(text)
+    station = doc["features"][0]
+    assert station["properties"]["planned_depth_m"] == 0.144
+    assert station["properties"]["water_depth_m"] == 3.3
+    assert station["geometry"]["coordinates"] == [-3.7260579, 40.4506308]
+    assert doc["features"][-1]["properties"]["depth_m"] == 3.3
+
+    path = tmp_path / "one.nc"
+    netcdf.write([cast], samples, path)
+    with netCDF4.Dataset(path) as nc:
+        assert nc["planned_depth"][0] == 0.144
+        assert nc["reached_depth"][0] == 0.144
+        assert nc["depth"][0] == 0.144
+        assert nc["lat"][0] == 40.4506308
+        assert nc["depth"].dtype.str == "<f8"

@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.sim.runner import AutopilotOnlyOptions, run_autopilot
+from cc_daemon.sim.options import AutopilotOnlyOptions
+from cc_daemon.sim.runner import run_autopilot
 from tests.daemonkit import DaemonProcess
 
 pytestmark = pytest.mark.slow

@@ -114,20 +114,41 @@ def test_every_row_says_whether_the_clock_was_synchronised(
     tmp_path: Path, make_journal: MakeJournal
 ) -> None:
     clock = FakeClock()
-    flag = tmp_path / "synchronized"
+    synced = [False]
+
+    def kernel_says() -> bool:  # as clocksync.clock_synced answers, from adjtimex
+        return synced[0]
+
     db = tmp_path / "j.db"
-    journal = make_journal(db, monotonic=clock.monotonic, wall=clock.wall, timesync_flag=flag)
+    journal = make_journal(db, monotonic=clock.monotonic, wall=clock.wall, clock_synced=kernel_says)
     journal.open()
     journal.record_fix(FIX)
-    flag.touch()
-    clock.advance(1.0)  # the flag is looked at once a second at most
+    synced[0] = True  # chrony (or timesyncd, or GPS time) got its sync
+    clock.advance(0.5)
+    journal.record_fix(FIX)  # asked once a second at most: still the old answer
+    clock.advance(0.5)
     journal.record_fix(FIX)
     cast_id = journal.start_cast(STATION, planned_depth_m=1.0, mode="continuous", plan={})
     journal.record_sample(cast_id, 0.5, "descending")
     journal.close()
-    assert query(db, "SELECT clock_synced FROM fixes ORDER BY id") == [(0,), (1,)]
+    assert query(db, "SELECT clock_synced FROM fixes ORDER BY id") == [(0,), (0,), (1,)]
     assert query(db, "SELECT start_clock_synced FROM casts") == [(1,)]
     assert query(db, "SELECT clock_synced FROM samples") == [(1,)]
+    assert query(db, "SELECT clock_synced FROM sessions") == [(0,)]  # asked at open, too
+
+
+def test_a_failing_clock_question_is_an_unsynchronised_clock_not_a_crash(
+    tmp_path: Path, make_journal: MakeJournal
+) -> None:
+    def broken() -> bool:
+        raise OSError("adjtimex: no such thing")
+
+    db = tmp_path / "j.db"
+    journal = make_journal(db, clock_synced=broken)
+    journal.open()
+    journal.record_fix(FIX)
+    journal.close()
+    assert query(db, "SELECT clock_synced FROM fixes") == [(0,)]
 
 
 def test_default_store_path_follows_systemd(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -408,3 +429,21 @@ def test_fixes_keep_the_mode_byte_and_the_decoded_autopilot_time(
     assert query(
         db, "SELECT frame, measuring_mode, ap_time_s, ap_time_order FROM fixes ORDER BY id"
     ) == [("P-T", None, 0x4800, "little"), ("P-M", 0, 73, "big"), ("P-M", None, None, None)]
+
+
+def test_by_default_the_journal_asks_the_kernel_as_the_status_does(
+    tmp_path: Path, make_journal: MakeJournal, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import ctypes.util
+
+    from cc_daemon.status import clocksync
+
+    expected = clocksync.clock_sync().synchronised is True
+    # libc is found once per process, never again from the event loop.
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: pytest.fail("looked up again"))
+    db = tmp_path / "j.db"
+    journal = make_journal(db)
+    journal.open()
+    journal.record_fix(FIX)
+    journal.close()
+    assert query(db, "SELECT clock_synced FROM fixes") == [(int(expected),)]

@@ -84,5 +84,62 @@ def test_missing_matplotlib_says_which_extra_to_install(
     with JournalReader(survey_db) as reader:
         casts, fixes = reader.casts(), reader.fixes()
     monkeypatch.setitem(sys.modules, "matplotlib", None)
-    with pytest.raises(OptionalDependencyError, match=r"pip install 'cc-daemon\[plot\]'"):
+    with pytest.raises(OptionalDependencyError, match=r"-m pip install 'matplotlib>=3.8'"):
         plot_survey(casts, fixes, tmp_path / "survey.png")
+
+
+def test_the_extension_says_the_format_and_others_are_refused(
+    survey_db: Path, tmp_path: Path
+) -> None:
+    with JournalReader(survey_db) as reader:
+        cast, samples = reader.casts(cast_id=2)[0], reader.samples(cast_id=2)
+        casts, fixes = reader.casts(), reader.fixes()
+    magic = {".png": PNG_SIGNATURE, ".pdf": b"%PDF-", ".svg": b"<?xml"}
+    for suffix, start in magic.items():
+        for name, draw in (
+            ("cast", lambda p: plot_cast(cast, samples, p)),
+            ("survey", lambda p: plot_survey(casts, fixes, p)),
+        ):
+            path = tmp_path / f"{name}{suffix.upper() if name == 'cast' else suffix}"
+            draw(path)
+            assert path.read_bytes().startswith(start), path
+    for bad in ("x.jpg", "x", "x.png.txt"):
+        with pytest.raises(ValueError, match=r"one of \.png, \.pdf, \.svg"):
+            plot_cast(cast, samples, tmp_path / bad)
+        with pytest.raises(ValueError, match=r"one of \.png, \.pdf, \.svg"):
+            plot_survey(casts, fixes, tmp_path / bad)
+        assert not (tmp_path / bad).exists()
+
+
+def test_the_cast_legend_hides_no_data(survey_db: Path) -> None:
+    from cc_daemon.plot import cast_figure
+
+    with JournalReader(survey_db) as reader:
+        figure = cast_figure(reader.casts(cast_id=2)[0], reader.samples(cast_id=2))
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    renderer = FigureCanvasAgg(figure).get_renderer()
+    figure.draw(renderer)
+    [axes] = figure.axes
+    [legend] = figure.legends
+    assert not legend.get_window_extent(renderer).overlaps(axes.get_window_extent(renderer))
+
+
+def test_each_station_outcome_looks_and_reads_differently(survey_db: Path) -> None:
+    from cc_daemon.plot import _STATIONS, _station_label
+    from cc_daemon.store.journal import OUTCOMES
+
+    assert set(_STATIONS) == {*OUTCOMES, "running"}
+    looks = {
+        (style.get("marker"), style.get("color"), style.get("facecolors"))
+        for _, style in _STATIONS.values()
+    }
+    assert len(looks) == len(_STATIONS)
+    with JournalReader(survey_db) as reader:
+        skipped, measured = reader.casts(cast_id=1)[0], reader.casts(cast_id=2)[0]
+    assert _station_label(skipped) == "#1 skipped"
+    assert _station_label(measured) == f"#2 {measured.reached_depth_m:.2f} m"
+    assert _station_label(measured._replace(outcome="aborted", reached_depth_m=1.0)) == (
+        "#2 aborted at 1.00 m"
+    )
+    assert _station_label(measured._replace(outcome=None, reached_depth_m=None)) == "#2 running"

@@ -228,3 +228,52 @@ async def test_systemd_hears_ready_while_the_port_is_still_missing(tmp_path: Pat
     assert b" | opening " in first
     assert not daemon.ready.is_set()  # it never answered the autopilot: no port
     assert b"STOPPING=1" in rest
+
+
+async def test_a_requested_shutdown_mid_cast_is_a_warning_not_an_error(
+    rig: tuple[Daemon, FramePort],
+) -> None:
+    daemon, port = rig
+    with structlog.testing.capture_logs() as logs:
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await port.send(station())
+        assert (await port.receive(1)).message == Ack(100)  # type: ignore[union-attr]
+        report = await port.receive(1.5)
+        assert report is not None and isinstance(report.message, DepthReport)
+        daemon.request_shutdown()  # systemctl restart, in the middle of the cast
+        assert await asyncio.wait_for(task, 15) == EXIT_OK
+    home = [e for e in logs if e["event"].startswith("cast ")]
+    home = [e for e in home if "bringing the probe home" in e["event"]]
+    assert [(e["log_level"], e["event"]) for e in home] == [
+        ("warning", "cast cut short by a requested shutdown: bringing the probe home")
+    ]
+    assert home[0]["reason"] == "shutdown"
+    # Nothing about the cast at error or worse (the simulated winch's banner is not it).
+    assert not [e for e in logs if e["log_level"] in ("error", "critical") and "cast_id" in e]
+    assert any(isinstance(r.message, Finished) for r in port.received)
+
+
+async def test_a_station_repeated_within_the_rearm_window_says_so(
+    rig: tuple[Daemon, FramePort],
+) -> None:
+    daemon, port = rig
+    shoal = station(sonar_mm=500)  # refused at once: R-O, R-F, and the station is done
+    with structlog.testing.capture_logs() as logs:
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        for _ in range(2):
+            await port.send(shoal)
+            while (got := await port.receive(2)) is not None:
+                if isinstance(got.message, Finished):
+                    break
+            assert got is not None
+        daemon.request_shutdown()
+        assert await asyncio.wait_for(task, 5) == EXIT_OK
+    [repeat] = [e for e in logs if e["event"].startswith("station repeated")]
+    assert (
+        repeat["event"] == "station repeated within the re-arm window: repeating R-F, no new cast"
+    )
+    assert repeat["log_level"] == "info"
+    assert repeat["rearm_s"] == 120.0
+    assert 0 <= repeat["since_s"] < 5

@@ -18,7 +18,7 @@ from cc_daemon.protocol import (
     StartMeasuring,
     Telemetry,
 )
-from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig, Phase, ViolationKind
+from cc_daemon.sim.autopilot import BITS_FLIPPED, Autopilot, AutopilotConfig, Phase, ViolationKind
 from cc_daemon.sim.mission import Mission, make_mission
 
 FAST = AutopilotConfig(frame_period_s=1.0, boat_speed_m_s=100.0)
@@ -219,7 +219,7 @@ def test_flags_corrupt_frames_unless_a_bit_was_flipped_on_the_way() -> None:
     noisy.bits_flipped(t + 0.5, inbound=True)
     noisy.on_corrupt(t + 0.5, error)
     assert noisy.problems == []
-    assert noisy.violations[0].excused_by == "bits flipped on the daemon's frames"
+    assert noisy.violations[0].excused_by == BITS_FLIPPED
     # A flip on our own frames cannot spoil the daemon's.
     noisy.on_frame(t + 1.0, DepthReport(0, 300))
     noisy.bits_flipped(t + 5.0, inbound=False)
@@ -237,7 +237,7 @@ def test_a_corrupt_frame_is_excused_by_a_flip_since_the_last_thing_heard() -> No
     # A mangled frame is reported when the bytes after it arrive, maybe much later.
     ap.bits_flipped(t + 8.0, inbound=True)
     ap.on_corrupt(t + 15.0, error)
-    assert ap.violations[-1].excused_by == "bits flipped on the daemon's frames"
+    assert ap.violations[-1].excused_by == BITS_FLIPPED
 
 
 def test_noise_far_from_a_silent_daemon_does_not_excuse_it() -> None:
@@ -249,7 +249,7 @@ def test_noise_far_from_a_silent_daemon_does_not_excuse_it() -> None:
         ap.poll(t + i)
     no_ack = [v for v in ap.violations if v.kind is ViolationKind.NO_ACK]
     assert len(no_ack) >= 20
-    assert no_ack[0].excused_by == "bits flipped on our frames"
+    assert no_ack[0].excused_by == BITS_FLIPPED
     assert all(not v.excused for v in no_ack[1:])
     assert len(ap.problems) == len(no_ack) - 1
 
@@ -262,7 +262,7 @@ def test_noise_excuses_a_lost_answer_and_a_report_gap_around_it() -> None:
         ap.poll(t + i)
     gap = [v for v in ap.violations if v.kind is ViolationKind.REPORT_GAP]
     assert len(gap) == 1
-    assert gap[0].excused_by == "bits flipped on the daemon's frames"
+    assert gap[0].excused_by == BITS_FLIPPED
     ap.on_frame(t + 6.5, DepthReport(0, 300))
     for i in range(7, 12):
         ap.poll(t + i)  # silence again, and no flip since 1.5 s

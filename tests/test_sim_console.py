@@ -149,6 +149,8 @@ def _summary(**changes: object) -> Summary:
         db_path=Path("/tmp/x/simulate.db"),
         log_path=Path("/tmp/x/simulate.log"),
         exit_code=0,
+        measured=1,
+        castable=1,
     )
     for key, value in changes.items():
         setattr(summary, key, value)
@@ -186,9 +188,16 @@ def test_the_summary_totals_say_where_the_data_is_and_how_to_export_it() -> None
     assert lines[1] == "corrupt frames: 0 from the daemon, 0 rejected by the daemon"
     assert "daemon: 1 cast(s) completed, 0 aborted, 1 skipped" in lines
     assert "protocol violations: 0" in lines
-    assert "data stored in /tmp/x/simulate.db" in lines
-    assert "  export it: cc-daemon export --db /tmp/x/simulate.db --format csv" in lines
-    assert lines[-1] == "SURVEY OK (exit status 0)"
+    assert "data stored in /tmp/x/simulate.db; next, as typed here:" in lines
+    assert any(
+        line.endswith(
+            " -m cc_daemon export --db /tmp/x/simulate.db --format csv -o /tmp/x/simulate.csv"
+        )
+        for line in lines
+    )
+    assert lines[-1] == (
+        "SURVEY OK: 1 of 1 castable station measured; the daemon kept the protocol (exit status 0)"
+    )
 
 
 def test_the_summary_lists_problems_and_groups_excused_ones() -> None:
@@ -200,6 +209,7 @@ def test_the_summary_lists_problems_and_groups_excused_ones() -> None:
     summary = _summary(
         violations=[*excused, real],
         exit_code=1,
+        protocol_kept=False,
         link_drops=1,
         daemon_port_losses=1,
         bits_flipped_out=5,
@@ -212,7 +222,10 @@ def test_the_summary_lists_problems_and_groups_excused_ones() -> None:
     assert "  excused: 3 x S not answered (the cable was unplugged)" in lines
     assert any("cable pulled 1 time(s); the daemon lost its port 1 time(s)" in x for x in lines)
     assert any("injected: 5 bits flipped towards the daemon, 2 towards" in x for x in lines)
-    assert lines[-1] == "SURVEY FAILED (exit status 1)"
+    assert lines[-1] == (
+        "SURVEY OK: 1 of 1 castable station measured; PROTOCOL VIOLATED (1 violation) "
+        "(exit status 1)"
+    )
 
 
 def test_print_summary_writes_table_and_totals() -> None:

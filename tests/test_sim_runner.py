@@ -20,30 +20,31 @@ from cc_daemon.config import Settings
 from cc_daemon.service import Daemon
 from cc_daemon.sim import mission as mission_module
 from cc_daemon.sim.autopilot import Autopilot
-from cc_daemon.sim.console import SimConsole
-from cc_daemon.sim.mission import make_mission
-from cc_daemon.sim.pty import PtyPair
-from cc_daemon.sim.runner import (
+from cc_daemon.sim.commands import (
     EXIT_USAGE,
+    add_commands,
+    add_simulate_arguments,
+    options_from_args,
+    run_from_args,
+)
+from cc_daemon.sim.console import SimConsole
+from cc_daemon.sim.logtap import LogTap
+from cc_daemon.sim.mission import make_mission
+from cc_daemon.sim.options import (
     FAST,
     REALTIME,
     AutopilotOnlyOptions,
-    LogTap,
     Pace,
     SimOptions,
-    _Run,
-    add_commands,
-    add_simulate_arguments,
     autopilot_config,
-    build_summary,
     daemon_settings,
-    options_from_args,
     plan_is_predictable,
-    run_autopilot,
-    run_from_args,
-    run_simulation,
 )
+from cc_daemon.sim.pty import PtyPair
+from cc_daemon.sim.runner import run_autopilot, run_simulation
+from cc_daemon.sim.session import Run
 from cc_daemon.sim.sonar_chain import SETTLE_S
+from cc_daemon.sim.summary import build_summary
 from cc_daemon.store import JournalReader
 
 REPO = Path(__file__).resolve().parent.parent
@@ -113,12 +114,17 @@ async def test_a_two_station_survey_at_demo_pace(tmp_path: Path, firmware: str) 
     assert "corrupt frames: 0 from the daemon, 0 rejected by the daemon" in text
     jogged = "S1: stick jog before the station: 1 P-D then 3 P-U frames (no reply expected)"
     assert (jogged in text) == (firmware == "ucm-2023")
-    assert "SURVEY OK (exit status 0)" in text
+    assert (
+        "SURVEY OK: 1 of 1 castable station measured; the daemon kept the protocol (exit status 0)"
+    ) in text
     assert "protocol violations: 0" in text
     assert "measured" in _row(text, "S1")
     assert "skipped: too shallow" in _row(text, "S2")
-    assert f"export it: cc-daemon export --db {tmp_path / 'survey.db'} --format csv" in text
-    assert "daemon: 1 cast(s) completed, 0 aborted, 1 skipped" in text
+    # Runnable as printed: here (pytest) the Python that runs us, with -m cc_daemon.
+    db, csv = tmp_path / "survey.db", tmp_path / "survey.csv"
+    assert f" -m cc_daemon export --db {db} --format csv -o {csv}\n" in text
+    assert f" -m cc_daemon plot --db {db} --cast 1 -o {tmp_path / 'survey-cast-1.png'}\n" in text
+    assert "daemon: 1 cast(s) completed, 0 aborted, 1 skipped, 0 unfinished\n" in text
     outcomes = [outcome for outcome, _, _ in _casts(tmp_path)]
     assert outcomes == ["completed", "skipped-shallow"]
     assert (tmp_path / "survey.log").read_text().count('"event": "cast started"') == 1
@@ -137,7 +143,11 @@ async def test_m_resent_throughout_the_cast_still_gives_one_cast_per_station(
 
 async def test_a_winch_stall_aborts_and_the_probe_comes_home_before_r_f(tmp_path: Path) -> None:
     code, text, _ = await _simulate(tmp_path, stations=2, pace=QUICK, winch_stall=True)
-    assert code == 0, text
+    assert code == 3, text  # the daemon did right, but the station was not measured
+    assert text.endswith(
+        "SURVEY INCOMPLETE: 0 of 1 castable station measured; the daemon kept the protocol "
+        "(exit status 3)\n"
+    )
     row = _row(text, "S1")
     assert "aborted: stall at 1.00 m" in row
     assert _reached(row) == pytest.approx(1.0, abs=0.05)  # where it stalled, not the last R-M
@@ -196,7 +206,7 @@ async def test_bit_flips_both_ways_are_counted_and_each_fault_they_cause_is_excu
     # Every violation was caused by a flip near it; none is left on the daemon's account.
     assert "protocol violations: 0 (+" in text
     assert "excused: " in text
-    assert "corrupt frame (bits flipped on the daemon's frames)" in text
+    assert "corrupt frame (bits flipped by --corrupt)" in text
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["completed", "skipped-shallow"]
 
 
@@ -230,7 +240,7 @@ async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
     tmp_path: Path,
 ) -> None:
     code, text = await _survey_interrupted_at(tmp_path, 3.0)
-    assert code == 1, text
+    assert code == 3, text
     assert "Ctrl-C: the daemon brings the probe home, then stops" in text
     assert "aborted: shutdown" in _row(text, "S1")
     assert "not reached" in _row(text, "S2")
@@ -238,6 +248,17 @@ async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
     assert "probe may be down" not in text
     assert "← R-F" in text
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["aborted"]
+
+
+async def test_ctrl_c_before_any_cast_claims_nothing_about_bringing_the_probe_home(
+    tmp_path: Path,
+) -> None:
+    code, text = await _survey_interrupted_at(tmp_path, 0.3)  # still under way to S1
+    assert code == 3, text
+    assert "Ctrl-C: no cast running, the daemon stops" in text
+    assert "interrupted before any cast: the probe never left home" in text
+    assert "brought the probe home" not in text and "brings the probe home" not in text
+    assert _casts(tmp_path) == []
 
 
 async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_be_down(
@@ -250,7 +271,10 @@ async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_
     line = next(x for x in text.splitlines() if x.startswith("stopped at once"))
     depth = float(line.removeprefix("stopped at once: the probe may be down at ").split()[0])
     assert depth > 0.1
-    assert "SURVEY FAILED (exit status 130)" in text
+    assert "SURVEY INCOMPLETE: 0 of 1 castable station measured" in text
+    assert text.endswith("(exit status 130)\n")
+    # The counts say it too: a cast left unfinished, the probe still down.
+    assert f"0 skipped, 1 unfinished; the probe left {depth:.2f} m down" in text
 
 
 async def test_a_probe_that_cannot_come_home_gets_no_r_f_and_fails_the_run(
@@ -272,7 +296,13 @@ async def test_a_probe_that_cannot_come_home_gets_no_r_f_and_fails_the_run(
     assert "← R-F" not in text  # never told to leave with the probe down
     assert "stopped at once: the probe may be down at 0.50 m" in text
     assert "interrupted" not in text
-    assert "SURVEY FAILED (exit status 130)" in text
+    assert ", 1 unfinished; the probe left 0.50 m down" in text
+    # Withholding R-F from a probe that is down is the protocol kept.
+    assert "R-F rightly withheld" in text
+    assert text.endswith(
+        "SURVEY INCOMPLETE: 0 of 1 castable station measured; the daemon kept the protocol "
+        "(exit status 130)\n"
+    )
 
 
 def test_the_daemon_settings_for_a_run(tmp_path: Path) -> None:
@@ -392,7 +422,7 @@ async def test_simulate_autopilot_on_a_serial_port_against_a_daemon(tmp_path: Pa
 # ---------------------------------------------------------------- the summary, without a run
 
 
-def _one_cast_run(*, drop_at: float | None = None) -> _Run:
+def _one_cast_run(*, drop_at: float | None = None) -> Run:
     """A run whose autopilot saw S1 cast (deepest R-M 0.75 m, then R-F) and nothing else."""
     from cc_daemon.protocol import Ack, DepthReport, Finished
     from cc_daemon.sim.autopilot import AutopilotConfig, Phase
@@ -406,11 +436,11 @@ def _one_cast_run(*, drop_at: float | None = None) -> _Run:
     autopilot.on_frame(now, Ack(0))
     autopilot.on_frame(now + 0.5, DepthReport(0, 750))
     autopilot.on_frame(now + 1.5, Finished(0, 0))
-    return _Run(mission, autopilot, SimConsole(io.StringIO(), live=False), drop_at=drop_at)
+    return Run(mission, autopilot, SimConsole(io.StringIO(), live=False), drop_at=drop_at)
 
 
 def test_reached_is_the_journals_depth_not_the_deepest_report_that_arrived() -> None:
-    from cc_daemon.sim.runner import JournalCast
+    from cc_daemon.sim.summary import JournalCast
 
     run = _one_cast_run()
     stalled = JournalCast(1, 2.69, 1.0, "aborted", "winch fault: stall at 1.00 m")
@@ -510,7 +540,7 @@ def test_the_log_tap_has_no_finaliser_to_trip_over_a_closed_file(tmp_path: Path)
     """Under `python -X dev`, an io stream's finaliser flushing a closed file is reported."""
     script = (
         "import gc, sys\n"
-        "from cc_daemon.sim.runner import LogTap\n"
+        "from cc_daemon.sim.logtap import LogTap\n"
         f"file = open({str(tmp_path / 'log')!r}, 'w')\n"
         "tap = LogTap(file, lambda: 0.0)\n"
         "tap.write('{}\\n')\n"

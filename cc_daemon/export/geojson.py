@@ -10,7 +10,9 @@ FeatureCollection holding
 QGIS opens it as three layers (points, line, points), split by the
 `feature` property or geometry type. Positions are `[lon, lat]` in WGS 84
 degrees (RFC 7946 has no other CRS and no `crs` member), rounded to 1e-7 degree,
-the autopilot's resolution; depths in metres; times ISO 8601 UTC.
+the autopilot's resolution; depths in metres rounded to the millimetre (the
+resolution of the wire and the winch: never `0.14400000000000002`); times
+ISO 8601 UTC to the millisecond.
 
 It never reads the journal itself and never invents positions: a record
 without one is left out.
@@ -29,6 +31,11 @@ def _position(lon: float, lat: float) -> list[float]:
     return [round(lon, 7), round(lat, 7)]
 
 
+def _mm(metres: float | None) -> float | None:
+    """Metres to the millimetre, the finest any depth here is measured."""
+    return None if metres is None else round(metres, 3)
+
+
 def _station(cast: CastRecord) -> dict[str, Any]:
     return {
         "type": "Feature",
@@ -43,9 +50,9 @@ def _station(cast: CastRecord) -> dict[str, Any]:
             "outcome": cast.outcome or "running",
             "reason": cast.reason,
             "mode": cast.mode,
-            "planned_depth_m": cast.planned_depth_m,
-            "reached_depth_m": cast.reached_depth_m,
-            "water_depth_m": cast.water_depth_m,
+            "planned_depth_m": _mm(cast.planned_depth_m),
+            "reached_depth_m": _mm(cast.reached_depth_m),
+            "water_depth_m": _mm(cast.water_depth_m),
             "sonar_confidence_pct": cast.sonar_confidence_pct,
             "samples": cast.samples,
             "winch_backend": cast.winch_backend,
@@ -79,7 +86,7 @@ def _sounding(fix: FixRecord) -> dict[str, Any]:
             "feature": "sounding",
             "time_utc": iso_utc(fix.wall_s),
             "clock_synced": fix.clock_synced,
-            "depth_m": fix.sonar_distance_m,
+            "depth_m": _mm(fix.sonar_distance_m),
             "confidence_pct": fix.sonar_confidence_pct,
         },
     }

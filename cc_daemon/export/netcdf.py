@@ -8,6 +8,12 @@ each profile. Categories (the cast phase, the outcome) are small integers with
 CF `flag_values` / `flag_meanings`, which xarray, Ocean Data View and Panoply
 all understand, rather than strings that the classic format cannot hold.
 
+Values are stored at their real precision: depths in metres rounded to the
+millimetre, positions to 1e-7 degree (the autopilot's resolution), times to
+the millisecond; `obs_time` is each sample's CF time coordinate, named by the
+`coordinates` of the per-sample variables. The tests check the file with the
+IOOS compliance checker's CF 1.8 suite.
+
 The file is written in the NETCDF4_CLASSIC format, which the oldest readers
 still open. netCDF4 is the optional `netcdf` extra: it is imported here, when
 a file is written, never when the package is imported. This module never reads
@@ -39,8 +45,17 @@ def _flag_meanings(names: Sequence[str]) -> str:
     return " ".join(name.replace("-", "_") for name in names)
 
 
-def _nan(value: float | None) -> float:
-    return math.nan if value is None else value
+def _mm(metres: float | None) -> float:
+    """Metres to the millimetre (NaN for none): the finest any depth here is measured."""
+    return math.nan if metres is None else round(metres, 3)
+
+
+def _ms(seconds: float) -> float:
+    return round(seconds, 3)
+
+
+def _e7(degrees: float) -> float:
+    return round(degrees, 7)
 
 
 def _flag(value: str | None, names: Sequence[str]) -> int:
@@ -76,7 +91,9 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
         nc.cdm_data_type = "Profile"
         nc.title = "Probe casts of an autonomous survey boat"
         nc.source = f"cc-daemon {__version__} survey journal"
-        nc.date_created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        nc.date_created = created
+        nc.history = f"{created} written by cc-daemon {__version__} export --format netcdf"
         nc.comment = (
             "Times are the companion computer's wall clock; clock_synced = 0 marks"
             " profiles recorded before the clock was synchronised. Positions are the"
@@ -106,7 +123,7 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
             units=TIME_UNITS,
             calendar="standard",
             axis="T",
-        )[:] = [c.start_wall_s for c in casts]
+        )[:] = [_ms(c.start_wall_s) for c in casts]
         var(
             "lat",
             "f8",
@@ -115,7 +132,7 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
             long_name="station latitude",
             units="degrees_north",
             axis="Y",
-        )[:] = [c.lat_deg for c in casts]
+        )[:] = [_e7(c.lat_deg) for c in casts]
         var(
             "lon",
             "f8",
@@ -124,7 +141,7 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
             long_name="station longitude",
             units="degrees_east",
             axis="X",
-        )[:] = [c.lon_deg for c in casts]
+        )[:] = [_e7(c.lon_deg) for c in casts]
         var(
             "row_size",
             "i4",
@@ -149,14 +166,15 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
             flag_values=np.arange(len(OUTCOME_FLAGS), dtype="i1"),
             flag_meanings=_flag_meanings(OUTCOME_FLAGS),
         )[:] = [_flag(c.outcome or "running", OUTCOME_FLAGS) for c in casts]
+        # f8, not f4: a float32 cannot hold 0.144 m, and the millimetre is real.
         depth_attrs = {"units": "m", "positive": "down", "_FillValue": math.nan}
         var(
             "water_depth",
-            "f4",
+            "f8",
             "profile",
             long_name="distance to the bottom from the boat's sonar at the station",
             **depth_attrs,
-        )[:] = [c.water_depth_m for c in casts]
+        )[:] = [_mm(c.water_depth_m) for c in casts]
         var(
             "sonar_confidence",
             "i1",
@@ -164,31 +182,32 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
             long_name="sonar confidence of water_depth",
             units="percent",
         )[:] = [c.sonar_confidence_pct for c in casts]
-        var("planned_depth", "f4", "profile", long_name="planned probe depth", **depth_attrs)[:] = [
-            c.planned_depth_m for c in casts
+        var("planned_depth", "f8", "profile", long_name="planned probe depth", **depth_attrs)[:] = [
+            _mm(c.planned_depth_m) for c in casts
         ]
-        var("reached_depth", "f4", "profile", long_name="deepest probe depth", **depth_attrs)[:] = [
-            _nan(c.reached_depth_m) for c in casts
+        var("reached_depth", "f8", "profile", long_name="deepest probe depth", **depth_attrs)[:] = [
+            _mm(c.reached_depth_m) for c in casts
         ]
 
         var(
             "obs_time",
             "f8",
             "obs",
+            standard_name="time",
             long_name="time of the sample",
             units=TIME_UNITS,
             calendar="standard",
-        )[:] = [s.wall_s for s in kept]
+        )[:] = [_ms(s.wall_s) for s in kept]
         var(
             "depth",
-            "f4",
+            "f8",
             "obs",
             standard_name="depth",
             long_name="probe depth below the surface",
             units="m",
             positive="down",
             axis="Z",
-        )[:] = [s.depth_m for s in kept]
+        )[:] = [_mm(s.depth_m) for s in kept]
         var(
             "phase",
             "i1",
@@ -197,6 +216,6 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
             long_name="cast phase of the sample",
             flag_values=np.arange(len(PHASE_FLAGS), dtype="i1"),
             flag_meanings=_flag_meanings(PHASE_FLAGS),
-            coordinates="time lat lon depth",
+            coordinates="obs_time lat lon depth",
         )[:] = [_flag(s.phase, PHASE_FLAGS) for s in kept]
     return len(kept)

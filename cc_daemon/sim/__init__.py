@@ -8,7 +8,10 @@
 - `sonar_chain`: the autopilot's sonar module on a port, with the simulated Ping1D behind it.
 - `sonar_cli`: `cc-daemon simulate-sonar`, the simulated Ping1D alone.
 - `console`: the live view and the end-of-run summary.
-- `runner`: wires them to the daemon, in-process, and the command-line options.
+- `options`: a run's pace and options, and the daemon's settings for it (pure).
+- `session`: one run's frame loop and its narration; `logtap`: the daemon's log lines.
+- `summary`: the journal's casts, the per-station rows and the verdict.
+- `runner`: wires them to the daemon, in-process; `commands`: the command line.
 
 The simulator speaks to the daemon only through the wire protocol (the codec
 in `cc_daemon.protocol`); it never reaches into the daemon's internals except

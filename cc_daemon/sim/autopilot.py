@@ -97,6 +97,9 @@ class Phase(StrEnum):
     DONE = "done"  # every station visited (or the run was ended)
 
 
+# One wording whichever way the mangled frame went: the run injected the noise both ways.
+BITS_FLIPPED = "bits flipped by --corrupt"
+
 # What a lost or mangled frame can explain, by where the noise was.
 _EXPLAINED_BY_INBOUND_LOSS = frozenset(
     {
@@ -596,9 +599,9 @@ class Autopilot:
         margin = max(config.noise_margin_s, config.frame_period_s)
         start = since if kind is ViolationKind.CORRUPT_FRAME else since - margin
         if kind in _EXPLAINED_BY_INBOUND_LOSS and _any_between(self._flips_in, start, now):
-            return "bits flipped on the daemon's frames"
+            return BITS_FLIPPED
         if kind in _EXPLAINED_BY_OUTBOUND_LOSS and _any_between(self._flips_out, start, now):
-            return "bits flipped on our frames"
+            return BITS_FLIPPED
         return None
 
 

@@ -34,6 +34,7 @@ from rich.text import Text
 from cc_daemon.protocol import CorruptFrame, Message, as_dict
 from cc_daemon.sim.autopilot import Violation
 from cc_daemon.sim.mission import Mission
+from cc_daemon.sim.nextsteps import next_steps
 
 EXIT_PROBE_MAY_BE_DOWN = 130  # the daemon's exit status when it had to stop at once
 HOME_M = 0.01  # a probe this close to the surface is home
@@ -152,6 +153,13 @@ class Summary:
     daemon_exit: int | None = None  # None: it did not run here (or did not finish)
     probe_depth_m: float | None = None  # where the probe ended up, when known
     remote: bool = False  # the daemon is elsewhere: we know only what it said on the link
+    casts_unfinished: int | None = None  # from the journal: left with no R-F (stranded, cut)
+    protocol_kept: bool = True  # no unexcused violation, and the daemon did not fail
+    measured: int = 0  # castable stations with a complete cast
+    castable: int = 0  # stations deep enough to cast (the shoal is not one)
+    survey_complete: bool = True  # every station visited and measured (or rightly skipped)
+    probe_went_down: bool = True  # some cast lowered the probe
+    first_cast_id: int | None = None  # a cast of this run worth plotting
 
     @property
     def problems(self) -> list[Violation]:
@@ -209,10 +217,16 @@ def summary_lines(summary: Summary) -> list[str]:
             f"{summary.daemon_port_losses or 0} time(s) and reopened it"
         )
     if summary.casts_completed is not None:
-        lines.append(
+        counts = (
             f"daemon: {summary.casts_completed} cast(s) completed, {summary.casts_aborted} "
             f"aborted, {summary.casts_skipped} skipped"
         )
+        if summary.casts_unfinished is not None:
+            counts += f", {summary.casts_unfinished} unfinished"
+        depth = summary.probe_depth_m
+        if depth is not None and depth > HOME_M:
+            counts += f"; the probe left {depth:.2f} m down"
+        lines.append(counts)
     problems = summary.problems
     excused = len(summary.violations) - len(problems)
     lines.append(
@@ -223,16 +237,33 @@ def summary_lines(summary: Summary) -> list[str]:
     lines.extend(_excused_lines(summary.violations))
     lines.extend(summary.notes)
     if summary.db_path is not None:
-        lines.append(f"data stored in {summary.db_path}")
-        lines.append(f"  export it: cc-daemon export --db {summary.db_path} --format csv")
+        lines.append(f"data stored in {summary.db_path}; next, as typed here:")
+        lines.extend("  " + step for step in next_steps(summary.db_path, summary.first_cast_id))
     if summary.log_path is not None:
         lines.append(f"daemon log (JSON lines): {summary.log_path}")
     ending = _ending(summary)
     if ending is not None:
         lines.append(ending)
-    verdict = "SURVEY OK" if summary.exit_code == 0 else "SURVEY FAILED"
-    lines.append(f"{verdict} (exit status {summary.exit_code})")
+    lines.append(verdict_line(summary))
     return lines
+
+
+def verdict_line(summary: Summary) -> str:
+    """The last line: did the survey measure its stations, and did the daemon keep the protocol."""
+    castable = summary.castable
+    noun = "station" if castable == 1 else "stations"
+    measured = f"{summary.measured} of {castable} castable {noun} measured"
+    survey = "SURVEY OK" if summary.survey_complete else "SURVEY INCOMPLETE"
+    n = len(summary.problems)
+    if summary.protocol_kept:
+        protocol = "the daemon kept the protocol"
+    elif n:
+        protocol = f"PROTOCOL VIOLATED ({n} violation{'' if n == 1 else 's'})"
+    else:
+        protocol = f"THE DAEMON FAILED (its exit status {summary.daemon_exit})"
+    if summary.remote and summary.protocol_kept:
+        protocol += " on the wire"
+    return f"{survey}: {measured}; {protocol} (exit status {summary.exit_code})"
 
 
 def _ending(summary: Summary) -> str | None:
@@ -251,6 +282,8 @@ def _ending(summary: Summary) -> str | None:
         )
     if depth is None:
         return "interrupted"
+    if depth <= HOME_M and not summary.probe_went_down:
+        return "interrupted before any cast: the probe never left home"
     if depth <= HOME_M:
         return "interrupted: the daemon brought the probe home before stopping"
     return f"interrupted: the daemon stopped with the probe{at}"
@@ -295,9 +328,12 @@ class SimConsole:
     # ------------------------------------------------------------ lifecycle
 
     def start(self, mission: Mission, headline: str) -> None:
+        """Show `headline` (every line of it), then the live view or the station list."""
         self.mission = mission
         self.state.station_count = len(mission.stations)
         if self.live:
+            for line in headline.splitlines():
+                self._line(line)
             self._live = Live(
                 get_renderable=self.render,
                 console=self.rich,
@@ -306,7 +342,8 @@ class SimConsole:
             )
             self._live.start()
         else:
-            self._line(headline)
+            for line in headline.splitlines():
+                self._line(line)
             for station in mission.stations:
                 lat, lon = station.point.lat_lon
                 self._line(

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import os
 from dataclasses import dataclass
 
@@ -73,9 +74,20 @@ def from_adjtimex(returned: int, status: int, maxerror_us: int) -> ClockSync:
     return ClockSync(synced, maxerror_us / 1e6, "adjtimex", detail)
 
 
+@functools.cache
+def _libc() -> ctypes.CDLL:
+    # The C library this process already has (dlopen(NULL)): instant, where
+    # find_library runs ldconfig in a subprocess, and the journal asks this
+    # question from the daemon's event loop. Once per process either way.
+    here = ctypes.CDLL(None, use_errno=True)
+    if hasattr(here, "adjtimex"):
+        return here
+    return ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+
+
 def read_adjtimex() -> tuple[int, int, int]:
     """(return value, status, maxerror µs) of a read-only adjtimex; OSError if refused."""
-    libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+    libc = _libc()
     timex = _Timex()  # modes = 0: read only
     returned = int(libc.adjtimex(ctypes.byref(timex)))
     if returned < 0:

@@ -29,6 +29,7 @@ from typing import Any
 
 from cc_daemon import __version__
 from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.status.clocksync import clock_sync
 from cc_daemon.store import sonde
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
@@ -37,7 +38,6 @@ from cc_daemon.store.writer import BufferedWriter
 
 PHASES = frozenset({"soaking", "descending", "dwelling", "ascending", "aborting", "stranded"})
 OUTCOMES = frozenset({"completed", "skipped-shallow", "aborted", "unfinished"})
-TIMESYNC_FLAG = Path("/run/systemd/timesync/synchronized")
 BOOT_ID = Path("/proc/sys/kernel/random/boot_id")
 SYNC_CHECK_INTERVAL_S = 1.0
 UNFINISHED_REASON = "no end recorded: the daemon stopped during the cast (crash, kill or power cut)"
@@ -181,6 +181,10 @@ class JournalHealth:
     writer_alive: bool = False  # the writer thread is running (restarted if it ever stops)
 
 
+def _kernel_says_synced() -> bool:
+    return clock_sync().synchronised is True
+
+
 def default_store_path() -> Path:
     """`$STATE_DIRECTORY/cc-daemon.db` under systemd, else `./cc-daemon.db`."""
     # systemd joins several StateDirectory= entries with ':'; the first is ours.
@@ -221,7 +225,7 @@ class Journal(BufferedWriter):
         *,
         monotonic: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
-        timesync_flag: Path = TIMESYNC_FLAG,
+        clock_synced: Callable[[], bool] | None = None,
         max_buffered_rows: int | None = None,
         on_connect: Callable[[sqlite3.Connection], None] | None = None,
         winch_backend: str | None = None,
@@ -247,9 +251,11 @@ class Journal(BufferedWriter):
             path, wall=wall, max_buffered_rows=max_buffered_rows, on_connect=on_connect
         )
         self._monotonic = monotonic
+        # The same answer `cc-daemon status` gives: the kernel's (adjtimex), which
+        # every time daemon sets, else timesyncd's flag file.
+        self._clock_synced_now = clock_synced or _kernel_says_synced
         self._winch_backend = winch_backend
         self._simulated = None if simulated is None else int(simulated)
-        self._timesync_flag = str(timesync_flag)
         self._next_cast_id = 1  # guarded by _lock: the writer raises it past the file's
 
         # Loop-thread only.
@@ -530,11 +536,17 @@ class Journal(BufferedWriter):
             self._errors.error("record_event", "journal could not record an event", error=repr(exc))
 
     def _clock_synced(self, mono: float) -> int:
-        # A stat() a second at most: the flag changes once per boot or so.
+        # One adjtimex a second at most: the kernel's sync state changes rarely.
         if not 0.0 <= mono - self._sync_checked_at < SYNC_CHECK_INTERVAL_S:
             self._sync_checked_at = mono
-            self._synced = 1 if os.path.exists(self._timesync_flag) else 0
+            self._synced = self._ask_clock_synced()
         return self._synced
+
+    def _ask_clock_synced(self) -> int:
+        try:
+            return 1 if self._clock_synced_now() else 0
+        except Exception:  # never into the daemon: an unknown clock is not a synchronised one
+            return 0
 
     # ------------------------------------------------- the writer's hooks
 
@@ -591,7 +603,7 @@ class Journal(BufferedWriter):
                 f"cc-daemon {__version__}",
                 mono,
                 self._wall(),
-                1 if os.path.exists(self._timesync_flag) else 0,
+                self._ask_clock_synced(),
                 self._winch_backend,
                 self._simulated,
             ),

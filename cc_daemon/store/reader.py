@@ -266,6 +266,10 @@ class JournalReader:
         self._conn.close()
         self._drop_private()
 
+    def copy_to(self, target: sqlite3.Connection) -> None:
+        """Copy this reader's snapshot, whole, into `target` (SQLite's online backup)."""
+        self._conn.backup(target)
+
     def __enter__(self) -> JournalReader:
         return self
 

@@ -12,7 +12,8 @@ journal, and never touch a file written by a newer cc-daemon.
 
 Units, fixed across versions: times are seconds (`mono_s` from the monotonic
 clock of the boot that wrote the row, `wall_s` Unix time UTC from the system
-clock, `clock_synced` 1 when systemd-timesyncd said the clock was synchronised);
+clock, `clock_synced` 1 when the kernel said the clock was synchronised:
+`status.clocksync`);
 positions are the autopilot's integers (degrees x 1e7, millimetres); depths
 written by the daemon are metres.
 """

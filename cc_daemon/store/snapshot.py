@@ -1,0 +1,117 @@
+"""`cc-daemon snapshot DEST`: a consistent copy of the journal, even while it is written.
+
+This module owns copying a journal into one self-contained file to carry off
+the boat: SQLite's online backup of one read snapshot (`JournalReader`, which
+opens the journal read-only and never disturbs the daemon writing it), checked
+with `PRAGMA quick_check`, switched out of write-ahead logging so the copy is
+a single file, synced to disk when the copy commits, and described (casts,
+samples, fixes, events, time span). It never overwrites a file: DEST is
+created exclusively, and removed again if the copy fails.
+"""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from cc_daemon.store.reader import JournalReader, iso_utc
+from cc_daemon.store.schema import StoreError
+
+_SPAN_SQL = """
+SELECT min(t), max(t) FROM (
+    SELECT min(wall_s) AS t FROM fixes UNION ALL SELECT max(wall_s) FROM fixes
+    UNION ALL SELECT min(wall_s) FROM samples UNION ALL SELECT max(wall_s) FROM samples
+    UNION ALL SELECT min(wall_s) FROM events UNION ALL SELECT max(wall_s) FROM events
+    UNION ALL SELECT min(start_wall_s) FROM casts UNION ALL SELECT max(end_wall_s) FROM casts
+)
+"""
+
+
+@dataclass(frozen=True, slots=True)
+class SnapshotReport:
+    source: Path
+    path: Path
+    casts: int
+    samples: int
+    fixes: int
+    events: int
+    first_wall_s: float | None
+    last_wall_s: float | None
+    size_bytes: int
+
+    def describe(self) -> str:
+        span = (
+            "no records"
+            if self.first_wall_s is None or self.last_wall_s is None
+            else f"{iso_utc(self.first_wall_s)} to {iso_utc(self.last_wall_s)}"
+        )
+        return (
+            f"copied {self.source} to {self.path}: {_count(self.casts, 'cast')}, "
+            f"{_count(self.samples, 'sample')}, {_count(self.fixes, 'fix')}, "
+            f"{_count(self.events, 'event')}; {span}; {_size(self.size_bytes)}"
+        )
+
+
+def _size(size_bytes: int) -> str:
+    if size_bytes < 1_000_000:
+        return f"{size_bytes / 1000:.0f} kB"
+    return f"{size_bytes / 1e6:.1f} MB"
+
+
+def _count(n: int, noun: str) -> str:
+    plural = "fixes" if noun == "fix" else f"{noun}s"
+    return f"{n} {noun if n == 1 else plural}"
+
+
+def destination(source: Path, dest: Path, *, now: float | None = None) -> Path:
+    """DEST itself, or a new name inside it when DEST is a directory."""
+    if dest.is_dir():
+        stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(time.time() if now is None else now))
+        return dest / f"{source.stem}-snapshot-{stamp}.db"
+    return dest
+
+
+def take_snapshot(source: Path, dest: Path) -> SnapshotReport:
+    """Copy journal `source` to `dest` (or into the directory `dest`) consistently.
+
+    Raises `FileExistsError` if the file exists (nothing is touched),
+    `StoreError` if the journal cannot be read or the copy is not sound.
+    """
+    path = destination(source, dest)
+    with JournalReader(source) as reader:  # raises StoreError for a missing journal
+        # O_EXCL: never overwrite, even a file that appears while we look.
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+        try:
+            report = _copy(reader, source, path)
+        except BaseException:
+            path.unlink(missing_ok=True)
+            Path(f"{path}-journal").unlink(missing_ok=True)
+            raise
+    return report
+
+
+def _copy(reader: JournalReader, source: Path, path: Path) -> SnapshotReport:
+    target = sqlite3.connect(path, isolation_level=None)
+    try:
+        try:
+            reader.copy_to(target)
+            # One file to carry: the copy inherited the journal's WAL mode.
+            target.execute("PRAGMA journal_mode = DELETE").fetchone()
+            check = target.execute("PRAGMA quick_check").fetchone()[0]
+        except sqlite3.Error as exc:
+            raise StoreError(f"could not copy {source} to {path}: {exc}") from exc
+        if check != "ok":
+            raise StoreError(f"the copy of {source} failed its check: {check}")
+        casts, samples, fixes, events = (
+            int(target.execute(f"SELECT count(*) FROM {table}").fetchone()[0])
+            for table in ("casts", "samples", "fixes", "events")
+        )
+        first, last = target.execute(_SPAN_SQL).fetchone()
+    finally:
+        target.close()
+    return SnapshotReport(
+        source, path, casts, samples, fixes, events, first, last, path.stat().st_size
+    )
