@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.options import AutopilotOnlyOptions
+from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.runner import run_autopilot
 from tests.daemonkit import DaemonProcess
 
