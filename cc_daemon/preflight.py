@@ -1,10 +1,10 @@
 """Start-up checks of the paths a configuration names: refuse what can never work.
 
-The configuration's schema (`config.py`) cannot look at the filesystem; this
+The configuration's schema (`cc_daemon.config`) cannot look at the filesystem; this
 module does, once, before the daemon opens its serial port: a `serial.port`
 that exists and is not a terminal, or a `store.path` that is a directory, a
 device, under /proc, /sys or /dev, or in a directory that does not exist, is a
-configuration error (exit 2, the key named as `config.py` names keys). Then it
+configuration error (exit 2, the key named as `cc_daemon.config` names keys). Then it
 opens the journal, and a journal that cannot be opened at start is an error
 too: running on with the whole survey in memory would lose it to a power cut.
 

@@ -2,7 +2,7 @@
 
 This module owns the sonde's configuration models and the default register map
 (the group's current winch controller's device: Modbus RTU, 9600 8N1, slave 80,
-32-bit IEEE floats high word first from holding register 40011 on). `config.py`
+32-bit IEEE floats high word first from holding register 40011 on). `cc_daemon.config`
 only adds the section to `Settings`; errors are worded there.
 
 It must never open a port or import pymodbus: validating a configuration
@@ -42,7 +42,7 @@ def register_count(data_type: str) -> int:
 
 
 def _impossible(rule: str, *keys: str) -> PydanticCustomError:
-    # The same error shape as config.py's, so the message names each key.
+    # The same error shape as cc_daemon.config's, so the message names each key.
     return PydanticCustomError(
         "impossible_combination",
         "impossible combination: " + rule.format(*keys),
@@ -137,7 +137,7 @@ class SondeSettings(BaseModel):
     parity: Annotated[Literal["N", "E", "O"], BeforeValidator(_upper)] = "N"
     stopbits: Literal[1, 2] = 1
     slave_id: Annotated[int, Field(ge=1, le=247)] = 80
-    # Bounds on every period and duration, as in config.py (reasons in config/cc-daemon.toml).
+    # Bounds on every period and duration, as in cc_daemon.config (reasons in config/cc-daemon.toml).
     period_s: Annotated[float, Field(ge=0.1, le=60.0)] = 1.0
     idle_period_s: Annotated[float, Field(ge=0.1, le=3600.0)] = 10.0
     timeout_s: Annotated[float, Field(ge=0.05, le=10.0)] = 0.3

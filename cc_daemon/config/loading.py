@@ -1,0 +1,336 @@
+"""Where configuration values come from, and what a bad one says.
+
+This module owns the order of the sources (command-line flag > environment >
+TOML file > default) and the wording of configuration errors: one line per
+problem naming the dotted key, the value given, what is allowed and where the
+value came from. It reads at most one TOML file and the environment mapping it
+is given, and either returns a frozen `Settings` or raises `ConfigError`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import os
+import re
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ValidationError
+from pydantic_core import ErrorDetails
+from pydantic_settings import TomlConfigSettingsSource
+
+from cc_daemon.config.rules import _Key, _Leaf, _Origin
+from cc_daemon.config.schema import Settings
+from cc_daemon.errors import ConfigError
+
+ENV_PREFIX = "CC_DAEMON_"
+ENV_NESTED_DELIMITER = "__"
+# Searched in order when no --config is given; the first that exists is used.
+DEFAULT_SEARCH_PATHS: tuple[Path, ...] = (
+    Path("cc-daemon.toml"),
+    Path("/etc/cc-daemon/cc-daemon.toml"),
+)
+# The command line's flags, so an error can name the flag a value came from.
+FLAG_NAMES: Mapping[tuple[str, ...], str] = {
+    ("serial", "port"): "--port",
+    ("serial", "baudrate"): "--baudrate",
+    ("winch", "backend"): "--winch",
+    ("winch", "gpio", "pin_factory"): "--winch",
+    ("store", "path"): "--db",
+    ("log", "format"): "--log-format",
+    ("log", "level"): "--log-level",
+}
+_PREFIX = "cc-daemon: bad configuration: "
+
+
+def load_settings(
+    config_path: Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    *,
+    env: Mapping[str, str] | None = None,
+    search_paths: Sequence[Path] = DEFAULT_SEARCH_PATHS,
+) -> Settings:
+    """Read the configuration: flag (`overrides`) > environment > TOML file > default.
+
+    `config_path` is the --config file, which must exist; without it the first of
+    `search_paths` that exists is read, and none is fine. `overrides` holds the
+    command-line flags as a nested dict; None values mean "flag not given". `env`
+    defaults to `os.environ`. Raises ConfigError, one line per problem.
+    """
+    problems: list[str] = []
+    file_leaves: list[_Leaf] = []
+    source_file = _find_file(config_path, search_paths, problems)
+    if source_file is not None:
+        file_leaves = _read_toml(source_file, problems)
+    env_leaves = _read_env(os.environ if env is None else env, problems)
+    if problems:
+        raise ConfigError("\n".join(_PREFIX + p for p in problems))
+
+    flag_leaves = _flatten(overrides or {}, (), None)
+    merged, origins = _merge([file_leaves, env_leaves, flag_leaves])
+    try:
+        settings = Settings.model_validate(merged)
+    except ValidationError as exc:
+        lines = [_describe(error, merged, origins) for error in exc.errors()]
+        raise ConfigError("\n".join(_PREFIX + line for line in lines)) from None
+    settings._source_file = source_file
+    settings._merged, settings._origins = merged, origins
+    return settings
+
+
+def _find_file(
+    config_path: Path | None, search_paths: Sequence[Path], problems: list[str]
+) -> Path | None:
+    if config_path is not None:
+        config_path = Path(config_path)  # tolerate the str argparse hands over
+        if not config_path.is_file():
+            what = "is not a file" if config_path.exists() else "no such file"
+            problems.append(f"--config {config_path}: {what}")
+            return None
+        return config_path.absolute()
+    for candidate in search_paths:
+        if candidate.is_file():
+            return candidate.absolute()
+    return None
+
+
+_TOML_POSITION = re.compile(r"\s*\(at line (\d+), column (\d+)\)$")
+
+
+def _read_toml(path: Path, problems: list[str]) -> list[_Leaf]:
+    try:
+        data = TomlConfigSettingsSource(Settings, toml_file=path)()
+    except tomllib.TOMLDecodeError as exc:
+        message = str(exc)
+        found = _TOML_POSITION.search(message)
+        where = f"line {found[1]}, column {found[2]}: " if found else ""
+        message = message[: found.start()] if found else message
+        problems.append(f"{path}: {where}not valid TOML: {message}")
+        return []
+    except UnicodeDecodeError as exc:
+        line = bytes(exc.object[: exc.start]).count(b"\n") + 1
+        problems.append(f"{path}: line {line}: not valid TOML: not UTF-8 text")
+        return []
+    except OSError as exc:
+        problems.append(f"{path}: cannot read: {exc.strerror or exc}")
+        return []
+    return _flatten(data, (), _Origin("file", str(path)))
+
+
+def _read_env(env: Mapping[str, str], problems: list[str]) -> list[_Leaf]:
+    leaves: list[_Leaf] = []
+    seen: dict[_Key, str] = {}
+    for name in sorted(env):
+        # Matched without regard to case, like pydantic-settings' default.
+        if not name.upper().startswith(ENV_PREFIX):
+            continue
+        key = tuple(name[len(ENV_PREFIX) :].lower().split(ENV_NESTED_DELIMITER))
+        if not all(key):
+            form = f"{ENV_PREFIX}<SECTION>{ENV_NESTED_DELIMITER}<KEY>"
+            problems.append(
+                f"{name}: not a setting name; use {form}, e.g. {ENV_PREFIX}SERIAL__PORT"
+            )
+            continue
+        # CC_DAEMON_SERIAL and CC_DAEMON_SERIAL__PORT cannot both be meant.
+        clash = next(
+            (other for k, other in seen.items() if k[: len(key)] == key or key[: len(k)] == k),
+            None,
+        )
+        if clash is not None:
+            problems.append(f"{name}: conflicts with {clash}; set only one of them")
+            continue
+        seen[key] = name
+        leaves.append((key, env[name], _Origin("env", name)))
+    return leaves
+
+
+def _flatten(data: Mapping[str, Any], prefix: _Key, origin: _Origin | None) -> list[_Leaf]:
+    """Leaves of a nested mapping; `origin` None means the command line (per-flag names)."""
+    leaves: list[_Leaf] = []
+    for name, value in data.items():
+        key = (*prefix, str(name))
+        if isinstance(value, Mapping):
+            leaves.extend(_flatten(value, key, origin))
+        elif value is not None or origin is not None:
+            here = origin or _Origin("flag", FLAG_NAMES.get(key, "the command line"))
+            leaves.append((key, value, here))
+    return leaves
+
+
+def _merge(layers: Sequence[Sequence[_Leaf]]) -> tuple[dict[str, Any], dict[_Key, _Origin]]:
+    """Apply layers lowest precedence first; remember who set each leaf."""
+    merged: dict[str, Any] = {}
+    origins: dict[_Key, _Origin] = {}
+    for layer in layers:
+        for key, value, origin in layer:
+            node = merged
+            for part in key[:-1]:
+                child = node.get(part)
+                if not isinstance(child, dict):
+                    child = node[part] = {}
+                node = child
+            node[key[-1]] = value
+            # Whatever a lower layer set at or below this key is gone now.
+            for stale in [k for k in origins if k[: len(key)] == key or key[: len(k)] == k]:
+                del origins[stale]
+            origins[key] = origin
+    return merged, origins
+
+
+# --- error messages ---------------------------------------------------------------------
+
+_MISSING = object()
+
+
+def _describe(
+    error: ErrorDetails, merged: Mapping[str, Any], origins: Mapping[_Key, _Origin]
+) -> str:
+    loc = tuple(str(part) for part in error["loc"])
+    kind = error["type"]
+    if kind == "impossible_combination":
+        ctx = error.get("ctx") or {}
+        keys = [(*loc, *str(k).split(".")) for k in ctx.get("keys", ())]
+        shown = [_key_value_source(k, merged, origins) for k in keys]
+        listed = ", ".join(shown[:-1]) + " and " + shown[-1] if len(shown) > 1 else "".join(shown)
+        rule = str(ctx.get("rule", "")).format(*(".".join(k) for k in keys))
+        return f"{listed}: impossible combination: {rule}"
+    if kind == "extra_forbidden":
+        return f"{_dotted(loc)} ({_source(loc, origins)}): {_unknown_key(loc)}"
+    return f"{_key_value_source(loc, merged, origins)}: {_requirement(error, loc)}"
+
+
+def _dotted(key: _Key) -> str:
+    return ".".join(key) if key else "(top level)"
+
+
+def _key_value_source(key: _Key, merged: Mapping[str, Any], origins: Mapping[_Key, _Origin]) -> str:
+    value = _lookup(merged, key)
+    if value is _MISSING:
+        return f"{_dotted(key)} = {_render(_default(key))} (default)"
+    origin = origins.get(key)
+    if origin is not None and origin.kind == "env" and isinstance(value, str) and value.strip():
+        # Exactly as typed: every environment value is text, quoting it would mislead.
+        shown = value
+    else:
+        shown = _render(value)
+    return f"{_dotted(key)} = {shown} ({_source(key, origins)})"
+
+
+def _source(key: _Key, origins: Mapping[_Key, _Origin]) -> str:
+    for length in range(len(key), 0, -1):
+        origin = origins.get(key[:length])
+        if origin is not None:
+            return f"from {origin.name}"
+    # A section such as [winch.bogus] has no value of its own: name one of its keys' source.
+    for k, origin in origins.items():
+        if k[: len(key)] == key:
+            return f"from {origin.name}"
+    return "default"
+
+
+def _lookup(data: Any, key: _Key) -> Any:
+    for part in key:
+        if isinstance(data, list | tuple) and part.isdigit() and int(part) < len(data):
+            data = data[int(part)]  # an array of tables: [[sonde.parameters]]
+            continue
+        if not isinstance(data, Mapping) or part not in data:
+            return _MISSING
+        data = data[part]
+    return data
+
+
+def _default(key: _Key) -> Any:
+    node: Any = Settings()
+    for part in key:
+        node = getattr(node, part, None)
+    return node
+
+
+def _render(value: Any) -> str:
+    """A value as it would be written in the TOML file."""
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str | Path):
+        return json.dumps(str(value))
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{k} = {_render(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_render(v) for v in value) + "]"
+    return repr(value)
+
+
+def _model_at(key: _Key) -> type[BaseModel] | None:
+    model: type[BaseModel] = Settings
+    for part in key:
+        field = model.model_fields.get(part)
+        annotation = field.annotation if field else None
+        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
+            return None
+        model = annotation
+    return model
+
+
+def _unknown_key(key: _Key) -> str:
+    parent = key[:-1]
+    model = _model_at(parent)
+    names = list(model.model_fields) if model else []
+    if parent:
+        text = f"unknown key; allowed keys in [{'.'.join(parent)}]: {', '.join(names)}"
+    else:
+        text = f"unknown section; allowed sections: {', '.join(names)}"
+    close = difflib.get_close_matches(key[-1], names, n=1)
+    return text + (f" (did you mean {close[0]}?)" if close else "")
+
+
+_REQUIREMENTS = {
+    "int_type": "must be a whole number",
+    "int_parsing": "must be a whole number",
+    "int_from_float": "must be a whole number",
+    "float_type": "must be a number",
+    "float_parsing": "must be a number",
+    "finite_number": "must be a finite number",
+    "bool_type": "must be true or false",
+    "bool_parsing": "must be true or false",
+    "string_type": "must be a string",
+    "string_too_short": "must not be empty",
+    "path_type": "must be a file path (a string)",
+    "model_type": "must be a table of keys",
+    "model_attributes_type": "must be a table of keys",
+    "dict_type": "must be a table of keys",
+}
+
+
+def _number(value: Any) -> Any:
+    # A bound of 0 on a float field arrives as 0.0; say it as written.
+    return int(value) if isinstance(value, float) and value.is_integer() else value
+
+
+def _requirement(error: ErrorDetails, key: _Key) -> str:
+    kind = error["type"]
+    ctx = error.get("ctx") or {}
+    if kind in ("model_type", "model_attributes_type", "dict_type"):
+        return f"must be a table of keys ([{'.'.join(key)}])"
+    if kind in _REQUIREMENTS:
+        return _REQUIREMENTS[kind]
+    if kind == "greater_than":
+        return f"must be greater than {_number(ctx['gt'])}"
+    if kind == "greater_than_equal":
+        return f"must be at least {_number(ctx['ge'])}"
+    if kind == "less_than":
+        return f"must be less than {_number(ctx['lt'])}"
+    if kind == "less_than_equal":
+        return f"must be at most {_number(ctx['le'])}"
+    if kind == "literal_error":
+        # Double quotes, as the value would be written in TOML.
+        return "must be one of " + str(ctx["expected"]).replace("'", '"')
+    if kind == "value_error" and "error" in ctx:
+        return str(ctx["error"])
+    # pydantic's own wording, made to match ours, for anything not listed above.
+    return re.sub(r"^Input should be", "must be", error["msg"])

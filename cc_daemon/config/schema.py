@@ -1,0 +1,395 @@
+"""Every configuration key: the sections' models, their defaults, allowed ranges and
+the combinations that cannot work together, and the frozen `Settings` they make.
+
+`Settings()` and `Settings.model_validate(...)` read nothing but their arguments;
+only `loading.load_settings` looks at files and the environment.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    Field,
+    PrivateAttr,
+    model_validator,
+)
+from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+
+from cc_daemon.config.rules import (
+    _HOUR_S,
+    _SECTION,
+    _check_baudrate,
+    _check_stopbits,
+    _Dwell,
+    _empty_is_none,
+    _impossible,
+    _Key,
+    _lower,
+    _no_nul,
+    _NonNegative,
+    _Origin,
+    _Positive,
+    _upper,
+)
+from cc_daemon.sonde.settings import SondeSettings
+
+# What each key means, and its unit, is documented once, in config/cc-daemon.toml and
+# docs/configuration.md; tests keep both in step with these models.
+
+
+class SerialSettings(BaseModel):
+    """[serial]: the UART to the autopilot and how to reopen it when it fails."""
+
+    model_config = _SECTION
+
+    port: Annotated[str, Field(min_length=1), AfterValidator(_no_nul)] = "/dev/serial0"
+    baudrate: Annotated[int, AfterValidator(_check_baudrate)] = 9600
+    bytesize: Annotated[int, Field(ge=5, le=8)] = 8
+    parity: Annotated[Literal["N", "E", "O", "M", "S"], BeforeValidator(_upper)] = "N"
+    stopbits: Annotated[float, AfterValidator(_check_stopbits)] = 1
+    accept_g_alias: bool = False
+    reconnect_initial_s: Annotated[float, Field(ge=0.05, le=60.0)] = 0.2
+    reconnect_max_s: Annotated[float, Field(ge=0.05, le=600.0)] = 5.0
+    timestamp_order: Literal["auto", "big", "little"] = "auto"
+    jog_hold_s: Annotated[float, Field(ge=1.5, le=10.0)] = 2.5
+
+    @model_validator(mode="after")
+    def _check(self) -> SerialSettings:
+        if self.reconnect_max_s < self.reconnect_initial_s:
+            raise _impossible(
+                "{0} must be at least {1} (the reopen delay grows from the first to the second)",
+                "reconnect_max_s",
+                "reconnect_initial_s",
+            )
+        return self
+
+
+class WinchSimSettings(BaseModel):
+    """[winch.sim]: the simulated winch's physics and its fault injection (for tests)."""
+
+    model_config = _SECTION
+
+    speed_m_s: _Positive = 0.25
+    stall_at_m: Annotated[_Positive | None, BeforeValidator(_empty_is_none)] = None
+    fail_home: bool = False
+    # Outside --simulate a simulated winch would answer a real autopilot for a probe
+    # that never moves: it runs only when this says so in so many words.
+    allow_outside_simulation: bool = False
+
+
+_Bcm = Annotated[int, Field(ge=0, le=27)]
+_Duty = Annotated[float, Field(gt=0, le=1)]
+_Pull = Literal["none", "up", "down"]
+_Level = Literal["high", "low"]
+
+
+class WinchGpioSettings(BaseModel):
+    """[winch.gpio]: the real winch on the Pi's GPIO (BCM numbers); defaults from the
+    group's previous controller where it had one (docs/gpio-winch.md says which)."""
+
+    model_config = _SECTION
+
+    pin_factory: Literal["native", "mock"] = "native"
+    payout_pin: _Bcm = 5
+    haulin_pin: _Bcm = 0
+    enable_pin: _Bcm = 13
+    pwm_frequency_hz: Annotated[float, Field(gt=0, le=100_000)] = 1000.0
+    payout_duty: _Duty = 0.9
+    haulin_duty: _Duty = 0.9
+    ramp_s: _NonNegative = 0.2
+    approach_m: _NonNegative = 0.1
+    switch_pin: _Bcm = 17
+    switch_pull: _Pull = "none"
+    switch_active: _Level = "high"
+    switch_debounce_s: Annotated[float, Field(ge=0, le=1)] = 0.002
+    counter: Literal["pulse", "quadrature"] = "pulse"
+    pulse_pin: _Bcm = 27
+    encoder_b_pin: _Bcm = 22
+    pulse_pull: _Pull = "none"
+    pulse_debounce_s: Annotated[float, Field(ge=0, le=1)] = 0.002
+    pulses_per_rev: Annotated[int, Field(ge=1)] = 2
+    drum_diameter_m: _Positive = 0.09
+    line_speed_m_s: _Positive = 0.25
+    stall_timeout_s: _Positive = 2.0
+    home_margin_s: _NonNegative = 10.0
+    count_tolerance_m: _Positive = 0.5
+    home_at_start: bool = True
+    loop_watchdog_s: Annotated[float, Field(ge=0.05, le=60)] = 1.0
+    adc: bool = False
+    adc_spi_device: Annotated[int, Field(ge=0, le=1)] = 0
+    voltage_channel: Annotated[int, Field(ge=0, le=7)] = 0
+    current_channel: Annotated[int, Field(ge=0, le=7)] = 1
+    adc_vref_v: _Positive = 3.3
+    current_zero_v: _NonNegative = 2.5
+    current_v_per_a: _Positive = 0.185
+    divider_r1_ohm: _Positive = 29400.0
+    divider_r2_ohm: _Positive = 7400.0
+    max_current_a: _Positive = 4.0
+    overcurrent_s: _Positive = 0.5
+
+    def pins(self) -> dict[str, int]:
+        """Every GPIO this configuration claims, by key (SPI0 too when the ADC is on)."""
+        used = {
+            "payout_pin": self.payout_pin,
+            "haulin_pin": self.haulin_pin,
+            "enable_pin": self.enable_pin,
+            "switch_pin": self.switch_pin,
+            "pulse_pin": self.pulse_pin,
+        }
+        if self.counter == "quadrature":
+            used["encoder_b_pin"] = self.encoder_b_pin
+        return used
+
+    @model_validator(mode="after")
+    def _check(self) -> WinchGpioSettings:
+        # A pull resistor fixes which level is "open": a switch can only pull the other way.
+        if (self.switch_pull, self.switch_active) in (("up", "high"), ("down", "low")):
+            raise _impossible(
+                '{0} = "'
+                + self.switch_pull
+                + '" needs {1} = "'
+                + ("low" if self.switch_pull == "up" else "high")
+                + '" (the pull holds the open switch at the other level)',
+                "switch_pull",
+                "switch_active",
+            )
+        seen: dict[int, str] = {}
+        for key, pin in self.pins().items():
+            if pin in seen:
+                raise _impossible(
+                    "{0} and {1} must be different pins (one GPIO cannot do both)", seen[pin], key
+                )
+            seen[pin] = key
+        if self.adc:
+            # SPI0: MOSI 10, MISO 9, SCLK 11, CE0 8 / CE1 7.
+            spi = {10: "MOSI", 9: "MISO", 11: "SCLK", 8 - self.adc_spi_device: "CE"}
+            for pin, key in seen.items():
+                if pin in spi:
+                    raise _impossible(
+                        "{0} must not be an SPI0 pin (" + spi[pin] + ") when {1} is true",
+                        key,
+                        "adc",
+                    )
+            if self.voltage_channel == self.current_channel:
+                raise _impossible(
+                    "{0} and {1} must be different ADC channels",
+                    "voltage_channel",
+                    "current_channel",
+                )
+            if self.current_zero_v >= self.adc_vref_v:
+                raise _impossible(
+                    "{0} must be below {1} (the ADC could not read the zero)",
+                    "current_zero_v",
+                    "adc_vref_v",
+                )
+        return self
+
+
+class WinchSettings(BaseModel):
+    """[winch]: which backend drives the probe and how much line it has."""
+
+    model_config = _SECTION
+
+    backend: Literal["sim", "gpio"] = "sim"
+    max_line_m: _Positive = 20.0
+    sim: WinchSimSettings = WinchSimSettings()
+    gpio: WinchGpioSettings = WinchGpioSettings()
+
+    @model_validator(mode="after")
+    def _check(self) -> WinchSettings:
+        if self.sim.stall_at_m is not None and self.sim.stall_at_m >= self.max_line_m:
+            raise _impossible(
+                "{0} must be less than {1} (the line ends before the stall)",
+                "sim.stall_at_m",
+                "max_line_m",
+            )
+        return self
+
+
+class CastSettings(BaseModel):
+    """[cast]: how deep, how long and in which profile a cast of the probe runs."""
+
+    model_config = _SECTION
+
+    target_depth_m: _Positive = 5.0
+    min_sonar_confidence: Annotated[int, Field(ge=0, le=100)] = 70
+    bottom_clearance_m: _NonNegative = 0.5
+    min_depth_m: _NonNegative = 0.3
+    mode: Literal["continuous", "stepped"] = "continuous"
+    bottom_dwell_s: _Dwell = 10.0
+    step_m: _Positive = 1.0
+    dwell_s: _Dwell = 5.0
+    soak_s: _Dwell = 0.0
+    soak_depth_m: _NonNegative = 0.5
+    report_period_s: Annotated[float, Field(ge=0.2, le=10.0)] = 1.0
+    max_duration_s: Annotated[float, Field(ge=1.0, le=6 * _HOUR_S)] = 600.0
+    rearm_s: Annotated[float, Field(ge=0, le=_HOUR_S)] = 120.0
+    rearm_distance_m: _NonNegative = 10.0
+    depth_source: Literal["winch", "sonde"] = "winch"
+    rf_repeat_after_s: Annotated[float, Field(ge=0.5, le=60.0)] = 2.5
+    rf_repeats: Annotated[int, Field(ge=0, le=100)] = 3
+
+    @model_validator(mode="after")
+    def _check(self) -> CastSettings:
+        if self.min_depth_m > self.target_depth_m:
+            raise _impossible(
+                "{0} must not be deeper than {1} (every cast would be skipped)",
+                "min_depth_m",
+                "target_depth_m",
+            )
+        if self.soak_s > 0 and self.soak_depth_m >= self.target_depth_m:
+            raise _impossible(
+                "{0} must be shallower than {1} when {2} > 0 (the soak comes before the descent)",
+                "soak_depth_m",
+                "target_depth_m",
+                "soak_s",
+            )
+        return self
+
+
+class StoreSettings(BaseModel):
+    """[store]: where the survey journal is written."""
+
+    model_config = _SECTION
+
+    # None lets the journal choose its default location. Where the file may be
+    # (not a directory, a device, /proc...) is checked at start, not here: that
+    # needs the filesystem (see cc_daemon/preflight.py).
+    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
+    # Telemetry fixes written to the journal per second at most: the latest of
+    # each interval is kept, the rest counted. Bounds the disk a babbling
+    # autopilot can fill, and the memory the unwritten rows can take.
+    telemetry_rate_hz: Annotated[float, Field(ge=0.1, le=10.0)] = 2.0
+
+
+class LogSettings(BaseModel):
+    """[log]: how and how much the daemon logs."""
+
+    model_config = _SECTION
+
+    format: Literal["console", "json", "auto"] = "auto"
+    level: Annotated[
+        Literal["debug", "info", "warning", "error", "critical"], BeforeValidator(_lower)
+    ] = "info"
+
+
+class StatusSettings(BaseModel):
+    """[status]: the read-only status socket `cc-daemon status` and `doctor` ask."""
+
+    model_config = _SECTION
+
+    enabled: bool = True
+    # None: $RUNTIME_DIRECTORY/status.sock under systemd, else no socket.
+    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
+    max_clients: Annotated[int, Field(ge=1, le=1024)] = 32
+    client_timeout_s: Annotated[float, Field(ge=0.1, le=60.0)] = 2.0
+
+
+class SonarSettings(BaseModel):
+    """[sonar]: a Ping1D echosounder wired to the companion computer (off without a port)."""
+
+    model_config = _SECTION
+
+    # None (or empty): no sonar on this computer; the autopilot's frames are the only source.
+    port: Annotated[str | None, BeforeValidator(_empty_is_none)] = None
+    baudrate: Annotated[int, AfterValidator(_check_baudrate)] = 115200
+    max_age_s: _Positive = 1.0
+    restart_after_s: _Positive = 3.0
+    reconnect_initial_s: _Positive = 0.2
+    reconnect_max_s: _Positive = 5.0
+
+    @model_validator(mode="after")
+    def _check(self) -> SonarSettings:
+        if self.reconnect_max_s < self.reconnect_initial_s:
+            raise _impossible(
+                "{0} must be at least {1} (the reopen delay grows from the first to the second)",
+                "reconnect_max_s",
+                "reconnect_initial_s",
+            )
+        return self
+
+
+class Settings(BaseSettings):
+    """The whole configuration, frozen. Build it with `load_settings` to read sources."""
+
+    model_config = SettingsConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    serial: SerialSettings = SerialSettings()
+    winch: WinchSettings = WinchSettings()
+    cast: CastSettings = CastSettings()
+    store: StoreSettings = StoreSettings()
+    log: LogSettings = LogSettings()
+    status: StatusSettings = StatusSettings()
+    sonde: SondeSettings = SondeSettings()
+    sonar: SonarSettings = SonarSettings()
+
+    _source_file: Path | None = PrivateAttr(default=None)
+    # What load_settings merged and where each value came from, so a check made
+    # later (the start-up checks of paths) can name a key as these errors do.
+    _merged: dict[str, Any] = PrivateAttr(default_factory=dict)
+    _origins: dict[_Key, _Origin] = PrivateAttr(default_factory=dict)
+
+    @property
+    def source_file(self) -> Path | None:
+        """The TOML file the settings were read from, if any (for the startup log).
+
+        pydantic compares private attributes too: compare `model_dump()`s to ask
+        whether two Settings read from different files hold the same values.
+        """
+        return self._source_file
+
+    def describe(self, dotted_key: str) -> str:
+        """`key = value (from source)`, as a configuration error names a key."""
+        from cc_daemon.config.loading import _MISSING, _default, _key_value_source, _lookup, _render
+
+        key = tuple(dotted_key.split("."))
+        if _lookup(self._merged, key) is _MISSING:
+            node: Any = self
+            for part in key:
+                node = getattr(node, part)
+            where = "default" if node == _default(key) else "given"
+            return f"{dotted_key} = {_render(node)} ({where})"
+        return _key_value_source(key, self._merged, self._origins)
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        # Only the constructor's arguments: `Settings()` in a test must not pick up a
+        # developer's CC_DAEMON_* variables or ./cc-daemon.toml. load_settings reads
+        # the sources itself, one layer at a time, because an error must name the
+        # source of the bad value; and it reads the environment without
+        # EnvSettingsSource, which skips unknown CC_DAEMON_ variables silently.
+        return (init_settings,)
+
+    @model_validator(mode="after")
+    def _check(self) -> Settings:
+        if self.cast.target_depth_m > self.winch.max_line_m:
+            raise _impossible(
+                "{0} must not be deeper than {1} (the probe cannot go below the line's end)",
+                "cast.target_depth_m",
+                "winch.max_line_m",
+            )
+        if self.cast.depth_source == "sonde" and self.sonde.backend == "none":
+            raise _impossible(
+                "{0} needs a sonde: set {1} (the R-M depth would come from nowhere)",
+                "cast.depth_source",
+                "sonde.backend",
+            )
+        if self.sonar.port is not None and self.sonar.port == self.serial.port:
+            raise _impossible(
+                "{0} must not be {1} (the sonar and the autopilot need a port each)",
+                "sonar.port",
+                "serial.port",
+            )
+        return self
