@@ -137,7 +137,7 @@ class SondeSettings(BaseModel):
     parity: Annotated[Literal["N", "E", "O"], BeforeValidator(_upper)] = "N"
     stopbits: Literal[1, 2] = 1
     slave_id: Annotated[int, Field(ge=1, le=247)] = 80
-    # Bounds on every period and duration, as in cc_daemon.config (reasons in config/cc-daemon.toml).
+    # Bounds on every period and duration, as in cc_daemon.config (reasons: config/cc-daemon.toml).
     period_s: Annotated[float, Field(ge=0.1, le=60.0)] = 1.0
     idle_period_s: Annotated[float, Field(ge=0.1, le=3600.0)] = 10.0
     timeout_s: Annotated[float, Field(ge=0.05, le=10.0)] = 0.3
