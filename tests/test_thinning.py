@@ -9,9 +9,8 @@ import pytest
 
 from cc_daemon.protocol import Telemetry
 from cc_daemon.store import Journal
-from cc_daemon.store.journal import buffer_rows
 from cc_daemon.store.synthetic import FakeClock
-from cc_daemon.store.thinning import FixThinner
+from cc_daemon.store.thinning import FixThinner, buffer_rows
 from tests.test_journal import query, wait_for
 
 FIX = Telemetry(72, -37260579, 404506308, 702385, 8219, 100)

@@ -33,7 +33,22 @@ from cc_daemon.status.clocksync import clock_sync
 from cc_daemon.store import sonde
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
-from cc_daemon.store.thinning import FixThinner
+from cc_daemon.store.rows import (
+    CAST,
+    END,
+    EVENT,
+    INSERT_CAST,
+    INSERT_EVENT,
+    INSERT_FIX,
+    INSERT_SAMPLE,
+    INSERT_SONAR,
+    RECOVER_UNFINISHED,
+    SAMPLE,
+    SONAR,
+    SPILL_LAYOUT,
+    UPDATE_END,
+)
+from cc_daemon.store.thinning import FixThinner, buffer_rows
 from cc_daemon.store.writer import BufferedWriter
 
 PHASES = frozenset({"soaking", "descending", "dwelling", "ascending", "aborting", "stranded"})
@@ -41,130 +56,6 @@ OUTCOMES = frozenset({"completed", "skipped-shallow", "aborted", "unfinished"})
 BOOT_ID = Path("/proc/sys/kernel/random/boot_id")
 SYNC_CHECK_INTERVAL_S = 1.0
 UNFINISHED_REASON = "no end recorded: the daemon stopped during the cast (crash, kill or power cut)"
-# The in-memory buffer of a thinned journal holds what an hour without a
-# writable disk brings at most: telemetry at its rate, depth samples at the
-# fastest report period allowed (0.2 s), and room for events. At 2 Hz that is
-# 26,200 rows, some 10 MB.
-BUFFER_SPAN_S = 3600.0
-MAX_SAMPLE_HZ = 5.0
-EVENT_ROOM_ROWS = 1000
-
-
-def buffer_rows(telemetry_rate_hz: float) -> int:
-    """Rows to hold in memory for a journal thinned to `telemetry_rate_hz`."""
-    return int(BUFFER_SPAN_S * (telemetry_rate_hz + MAX_SAMPLE_HZ)) + EVENT_ROOM_ROWS
-
-
-# Row kinds besides `FIX` (0, a telemetry fix; see `buffer`): a row is the kind,
-# then its values in the order of the matching INSERT.
-# An event row ends with the `cast_id` of its details (or None), after the
-# INSERT's values, so a cast stored under a new id can be followed.
-_CAST = 1
-_SAMPLE = 2
-_END = 3
-_EVENT = 4
-_SONAR = 6  # written in bulk with the fixes (`bulk_kinds`); 5 is the sonde's (`store.sonde`)
-
-_INSERT_FIX = (
-    "INSERT INTO fixes (session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s,"
-    " lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct, measuring_mode,"
-    " ap_time_s, ap_time_order) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
-)
-_INSERT_CAST = (
-    "INSERT INTO casts (id, session_id, start_mono_s, start_wall_s, start_clock_synced,"
-    " ap_timestamp_s, lon_e7, lat_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct,"
-    " planned_depth_m, mode, plan_json, winch_backend, simulated)"
-    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"
-)
-_INSERT_SAMPLE = (
-    "INSERT INTO samples (cast_id, mono_s, wall_s, clock_synced, depth_m, phase)"
-    " VALUES (?, ?, ?, ?, ?, ?)"
-)
-_UPDATE_END = (
-    "UPDATE casts SET end_mono_s = ?, end_wall_s = ?, end_clock_synced = ?, outcome = ?,"
-    " reached_depth_m = ?, reason = ? WHERE id = ?"
-)
-_INSERT_SONAR = (
-    "INSERT INTO sonar_readings (session_id, mono_s, wall_s, clock_synced, port, distance_mm,"
-    " confidence_pct) VALUES (?, ?, ?, ?, ?, ?, ?)"
-)
-_INSERT_EVENT = (
-    "INSERT INTO events (session_id, mono_s, wall_s, clock_synced, kind, detail_json)"
-    " VALUES (?, ?, ?, ?, ?, ?)"
-)
-_RECOVER_UNFINISHED = """
-UPDATE casts SET
-    outcome = 'unfinished',
-    reason = ?,
-    reached_depth_m = (SELECT max(depth_m) FROM samples WHERE cast_id = casts.id),
-    end_mono_s = (SELECT max(mono_s) FROM samples WHERE cast_id = casts.id),
-    end_wall_s = (SELECT wall_s FROM samples WHERE cast_id = casts.id
-                  ORDER BY mono_s DESC LIMIT 1),
-    end_clock_synced = (SELECT clock_synced FROM samples WHERE cast_id = casts.id
-                        ORDER BY mono_s DESC LIMIT 1)
-WHERE outcome IS NULL
-"""
-
-# The spill file's columns per row kind: a row's values after its kind, in order.
-_SPILL_LAYOUT: dict[int, tuple[str, tuple[str, ...]]] = {
-    FIX: (
-        "fixes",
-        (
-            "mono_s",
-            "wall_s",
-            "clock_synced",
-            "frame",
-            "ap_timestamp_s",
-            "lon_e7",
-            "lat_e7",
-            "alt_mm",
-            "sonar_distance_mm",
-            "sonar_confidence_pct",
-            "measuring_mode",
-            "ap_time_s",
-            "ap_time_order",
-        ),
-    ),
-    _CAST: (
-        "casts",
-        (
-            "id",
-            "start_mono_s",
-            "start_wall_s",
-            "start_clock_synced",
-            "ap_timestamp_s",
-            "lon_e7",
-            "lat_e7",
-            "alt_mm",
-            "sonar_distance_mm",
-            "sonar_confidence_pct",
-            "planned_depth_m",
-            "mode",
-            "plan_json",
-            "winch_backend",
-            "simulated",
-        ),
-    ),
-    _SAMPLE: ("samples", ("cast_id", "mono_s", "wall_s", "clock_synced", "depth_m", "phase")),
-    _END: (
-        "cast_ends",
-        (
-            "cast_id",
-            "end_mono_s",
-            "end_wall_s",
-            "end_clock_synced",
-            "outcome",
-            "reached_depth_m",
-            "reason",
-        ),
-    ),
-    _EVENT: ("events", ("mono_s", "wall_s", "clock_synced", "kind", "detail_json")),
-    sonde.SONDE: ("sonde_samples", sonde.COLUMNS),
-    _SONAR: (
-        "sonar_readings",
-        ("mono_s", "wall_s", "clock_synced", "port", "distance_mm", "confidence_pct"),
-    ),
-}
 
 
 @dataclass(frozen=True, slots=True)
@@ -216,8 +107,8 @@ class Journal(BufferedWriter):
     # When the buffer is full: after the fixes, events go, then samples, then the
     # sonde's readings (what the boat stops for); casts never.
     # Sonar readings are bulk rows like the fixes: written and shed with them.
-    shed_order = (_EVENT, _SAMPLE, sonde.SONDE)
-    bulk_kinds = frozenset({FIX, _SONAR})
+    shed_order = (EVENT, SAMPLE, sonde.SONDE)
+    bulk_kinds = frozenset({FIX, SONAR})
 
     def __init__(
         self,
@@ -402,7 +293,7 @@ class Journal(BufferedWriter):
                 plan_json = _to_json(plan)
             except (TypeError, ValueError) as exc:  # a circular plan, say
                 plan_json = _to_json({"unserialisable_plan": repr(exc)})
-            row = (_CAST, cast_id, mono, self._wall(), self._clock_synced(mono), *station[:6])
+            row = (CAST, cast_id, mono, self._wall(), self._clock_synced(mono), *station[:6])
             winch = (self._winch_backend, self._simulated)
             self._append((*row, planned_depth_m, mode, plan_json, *winch))
         except Exception as exc:
@@ -422,7 +313,7 @@ class Journal(BufferedWriter):
                     phase=phase,
                 )
             self._append(
-                (_SAMPLE, cast_id, mono, self._wall(), self._clock_synced(mono), depth_m, phase)
+                (SAMPLE, cast_id, mono, self._wall(), self._clock_synced(mono), depth_m, phase)
             )
         except Exception as exc:
             self._errors.error(
@@ -490,7 +381,7 @@ class Journal(BufferedWriter):
             self._open_casts.discard(cast_id)
             self._append(
                 (
-                    _END,
+                    END,
                     cast_id,
                     mono,
                     self._wall(),
@@ -507,7 +398,7 @@ class Journal(BufferedWriter):
         """One reading of the daemon's own sonar (`[sonar]`), as it arrived."""
         try:
             mono = self._monotonic()
-            row = (_SONAR, mono, self._wall(), self._clock_synced(mono), port)
+            row = (SONAR, mono, self._wall(), self._clock_synced(mono), port)
             self._append((*row, distance_mm, confidence_pct))
         except Exception as exc:
             self._errors.error(
@@ -523,7 +414,7 @@ class Journal(BufferedWriter):
             mono = self._monotonic()
             ref = detail.get("cast_id")
             row = (
-                _EVENT,
+                EVENT,
                 mono,
                 self._wall(),
                 self._clock_synced(mono),
@@ -575,9 +466,9 @@ class Journal(BufferedWriter):
     def _committed(self, rows: list[Row], refused: set[int], new_ids: dict[int, int]) -> None:
         self._id_map.update(new_ids)
         for row in rows:
-            if row[0] == _CAST and id(row) not in refused:
+            if row[0] == CAST and id(row) not in refused:
                 self._unended[row[1]] = row
-            elif row[0] == _END:
+            elif row[0] == END:
                 self._unended.pop(row[1], None)
 
     def _rows_to_rewrite(self) -> list[Row]:
@@ -617,7 +508,7 @@ class Journal(BufferedWriter):
             " WHERE c.outcome IS NULL GROUP BY c.id ORDER BY c.id"
         ).fetchall()
         if found:
-            conn.execute(_RECOVER_UNFINISHED, (UNFINISHED_REASON,))
+            conn.execute(RECOVER_UNFINISHED, (UNFINISHED_REASON,))
         return [(int(i), int(n), deepest) for i, n, deepest in found]
 
     def _stored_id(self, cast_id: int, new_ids: dict[int, int]) -> int:
@@ -636,24 +527,24 @@ class Journal(BufferedWriter):
     def _insert(self, conn: sqlite3.Connection, row: Row, new_ids: dict[int, int]) -> None:
         kind = row[0]
         if kind == FIX:
-            conn.execute(_INSERT_FIX, (self._session_id, *row[1:]))
-        elif kind == _SONAR:
-            conn.execute(_INSERT_SONAR, (self._session_id, *row[1:]))
-        elif kind == _SAMPLE:
-            conn.execute(_INSERT_SAMPLE, (self._stored_id(row[1], new_ids), *row[2:]))
-        elif kind == _CAST:
+            conn.execute(INSERT_FIX, (self._session_id, *row[1:]))
+        elif kind == SONAR:
+            conn.execute(INSERT_SONAR, (self._session_id, *row[1:]))
+        elif kind == SAMPLE:
+            conn.execute(INSERT_SAMPLE, (self._stored_id(row[1], new_ids), *row[2:]))
+        elif kind == CAST:
             self._insert_cast(conn, row, new_ids)
-        elif kind == _END:
-            cursor = conn.execute(_UPDATE_END, (*row[2:], self._stored_id(row[1], new_ids)))
+        elif kind == END:
+            cursor = conn.execute(UPDATE_END, (*row[2:], self._stored_id(row[1], new_ids)))
             if cursor.rowcount == 0:
                 self._errors.error(
                     "end-unknown",
                     "journal: end of a cast that is not in the file",
                     cast_id=row[1],
                 )
-        elif kind == _EVENT:
+        elif kind == EVENT:
             detail_json = self._event_detail(row, new_ids)
-            conn.execute(_INSERT_EVENT, (self._session_id, *row[1:5], detail_json))
+            conn.execute(INSERT_EVENT, (self._session_id, *row[1:5], detail_json))
         elif kind == sonde.SONDE:
             cast_id = None if row[1] is None else self._stored_id(row[1], new_ids)
             conn.execute(sonde.INSERT, (self._session_id, cast_id, *row[2:]))
@@ -666,12 +557,12 @@ class Journal(BufferedWriter):
         wanted = self._id_map.get(cast_id, cast_id)
         taken = conn.execute("SELECT 1 FROM casts WHERE id = ?", (wanted,)).fetchone()
         if not taken:
-            conn.execute(_INSERT_CAST, (wanted, self._session_id, *row[2:]))
+            conn.execute(INSERT_CAST, (wanted, self._session_id, *row[2:]))
             return
         # The id was handed out while the file could not be read (so the last
         # id in it was unknown), or another process wrote the same file: store
         # the cast under a fresh id and send its samples, end and events there too.
-        cursor = conn.execute(_INSERT_CAST, (None, self._session_id, *row[2:]))
+        cursor = conn.execute(INSERT_CAST, (None, self._session_id, *row[2:]))
         assert cursor.lastrowid is not None
         new_ids[cast_id] = cursor.lastrowid
         with self._lock:  # ids handed out from now on must not meet this one
@@ -686,12 +577,12 @@ class Journal(BufferedWriter):
 
     def _spill_line(self, row: Row) -> str:
         try:
-            table, columns = _SPILL_LAYOUT[row[0]]
+            table, columns = SPILL_LAYOUT[row[0]]
             record: dict[str, object] = {"table": table, "session_id": self._session_id}
             record.update(zip(columns, row[1:], strict=False))
-            if row[0] in (_SAMPLE, _END) or (row[0] == sonde.SONDE and row[1] is not None):
+            if row[0] in (SAMPLE, END) or (row[0] == sonde.SONDE and row[1] is not None):
                 record["cast_id"] = self._stored_id(row[1], {})
-            elif row[0] == _EVENT:
+            elif row[0] == EVENT:
                 record["detail_json"] = self._event_detail(row, {})
             return json.dumps(record, default=repr)
         except Exception:

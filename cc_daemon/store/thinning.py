@@ -74,3 +74,17 @@ def _checked(rate_hz: float) -> float:
     if not (rate_hz > 0 and math.isfinite(rate_hz)):
         raise ValueError(f"telemetry rate must be a positive number of Hz, not {rate_hz!r}")
     return float(rate_hz)
+
+
+# The in-memory buffer of a thinned journal holds what an hour without a
+# writable disk brings at most: telemetry at its rate, depth samples at the
+# fastest report period allowed (0.2 s), and room for events. At 2 Hz that is
+# 26,200 rows, some 10 MB.
+BUFFER_SPAN_S = 3600.0
+MAX_SAMPLE_HZ = 5.0
+EVENT_ROOM_ROWS = 1000
+
+
+def buffer_rows(telemetry_rate_hz: float) -> int:
+    """Rows to hold in memory for a journal thinned to `telemetry_rate_hz`."""
+    return int(BUFFER_SPAN_S * (telemetry_rate_hz + MAX_SAMPLE_HZ)) + EVENT_ROOM_ROWS
