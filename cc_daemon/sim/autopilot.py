@@ -66,9 +66,17 @@ from cc_daemon.protocol import (
     Telemetry,
 )
 from cc_daemon.sim.mission import ORIGIN_ALT_M, Mission, Point, SonarReading, Station
-from cc_daemon.sim.violations import StationLog, Violation, ViolationKind
+from cc_daemon.sim.violations import (
+    BITS_FLIPPED,
+    EXPLAINED_BY_INBOUND_LOSS,
+    EXPLAINED_BY_OUTBOUND_LOSS,
+    StationLog,
+    Violation,
+    ViolationKind,
+)
 
 __all__ = [
+    "BITS_FLIPPED",
     "FIRMWARES",
     "Autopilot",
     "AutopilotConfig",
@@ -95,21 +103,6 @@ class Phase(StrEnum):
     REQUESTING = "requesting"  # at a station, sending M until R-O
     CASTING = "casting"  # R-O received, holding position until R-F
     DONE = "done"  # every station visited (or the run was ended)
-
-
-# One wording whichever way the mangled frame went: the run injected the noise both ways.
-BITS_FLIPPED = "bits flipped by --corrupt"
-
-# What a lost or mangled frame can explain, by where the noise was.
-_EXPLAINED_BY_INBOUND_LOSS = frozenset(
-    {
-        ViolationKind.CORRUPT_FRAME,
-        ViolationKind.NO_ACK,
-        ViolationKind.NO_PROBE_ANSWER,
-        ViolationKind.REPORT_GAP,
-    }
-)
-_EXPLAINED_BY_OUTBOUND_LOSS = frozenset({ViolationKind.NO_ACK, ViolationKind.NO_PROBE_ANSWER})
 
 
 @dataclass(frozen=True, slots=True)
@@ -587,7 +580,7 @@ class Autopilot:
 
     def _excuse(self, kind: ViolationKind, since: float, now: float) -> str | None:
         config = self.config
-        if kind in _EXPLAINED_BY_INBOUND_LOSS:
+        if kind in EXPLAINED_BY_INBOUND_LOSS:
             for outage in self._outages:
                 up = outage.up
                 end = float("inf") if up is None else up + config.outage_grace_s
@@ -598,9 +591,9 @@ class Autopilot:
         # mangled just before the window opened.
         margin = max(config.noise_margin_s, config.frame_period_s)
         start = since if kind is ViolationKind.CORRUPT_FRAME else since - margin
-        if kind in _EXPLAINED_BY_INBOUND_LOSS and _any_between(self._flips_in, start, now):
+        if kind in EXPLAINED_BY_INBOUND_LOSS and _any_between(self._flips_in, start, now):
             return BITS_FLIPPED
-        if kind in _EXPLAINED_BY_OUTBOUND_LOSS and _any_between(self._flips_out, start, now):
+        if kind in EXPLAINED_BY_OUTBOUND_LOSS and _any_between(self._flips_out, start, now):
             return BITS_FLIPPED
         return None
 

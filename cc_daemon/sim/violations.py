@@ -85,3 +85,18 @@ class StationLog:
         if self.reports == 0:
             return "skipped: too shallow" if self.station.too_shallow else "skipped"
         return "measured"
+
+
+# One wording whichever way the mangled frame went: the run injected the noise both ways.
+BITS_FLIPPED = "bits flipped by --corrupt"
+
+# What a lost or mangled frame can explain, by where the noise was.
+EXPLAINED_BY_INBOUND_LOSS = frozenset(
+    {
+        ViolationKind.CORRUPT_FRAME,
+        ViolationKind.NO_ACK,
+        ViolationKind.NO_PROBE_ANSWER,
+        ViolationKind.REPORT_GAP,
+    }
+)
+EXPLAINED_BY_OUTBOUND_LOSS = frozenset({ViolationKind.NO_ACK, ViolationKind.NO_PROBE_ANSWER})
