@@ -102,6 +102,9 @@ def test_a_journal_that_cannot_be_opened_at_start_is_a_configuration_error(
 def run_daemon(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("CC_DAEMON_")}
     env["PYTHONPATH"] = str(REPO)
+    # The simulated winch (the default backend) is what these runs drive; asked for
+    # in so many words, so that the checks under test are the ones that refuse.
+    env["CC_DAEMON_WINCH__SIM__ALLOW_OUTSIDE_SIMULATION"] = "true"
     return subprocess.run(
         [sys.executable, "-m", "cc_daemon", "--log-format", "json", *args],
         capture_output=True,

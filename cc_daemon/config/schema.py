@@ -56,7 +56,7 @@ class SerialSettings(BaseModel):
     reconnect_initial_s: Annotated[float, Field(ge=0.05, le=60.0)] = 0.2
     reconnect_max_s: Annotated[float, Field(ge=0.05, le=600.0)] = 5.0
     timestamp_order: Literal["auto", "big", "little"] = "auto"
-    jog_hold_s: Annotated[float, Field(ge=1.5, le=10.0)] = 2.5
+    jog_hold_s: Annotated[float, Field(ge=0.5, le=10.0)] = 2.5
 
     @model_validator(mode="after")
     def _check(self) -> SerialSettings:
