@@ -109,7 +109,15 @@ def test_everything_the_issue_asks_for_is_set() -> None:
     }
     assert {k: s.get(k, ["<missing>"])[-1] for k in expected} == expected
     assert set(s["SupplementaryGroups"][-1].split()) == {"dialout", "gpio", "spi"}
-    assert s["SystemCallFilter"] == ["@system-service", "~@privileged @resources"]
+    assert s["SystemCallFilter"] == [
+        "@system-service",
+        "~@privileged @resources",
+        "adjtimex clock_adjtime",  # read the clock's sync state; setting needs CAP_SYS_TIME
+    ]
+    # ProtectClock= would deny reading the kernel's clock state, which every journal
+    # row records; the clock stays unsettable: no capability at all is granted.
+    assert "ProtectClock" not in s
+    assert s["CapabilityBoundingSet"][-1] == ""
     allowed = {v.split()[0] for v in s["DeviceAllow"]}
     devices = ("ttyS", "ttyAMA", "ttyUSB", "ttyACM", "gpiochip", "spi")
     assert allowed == {f"char-{n}" for n in devices}

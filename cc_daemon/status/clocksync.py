@@ -2,9 +2,10 @@
 
 `adjtimex(2)` with `modes = 0` changes nothing and returns the kernel's NTP
 state: the `STA_UNSYNC` status bit (set until a time daemon has disciplined the
-clock) and `maxerror`, the bound on the clock's error it maintains. Under the
-service's syscall filter (`ProtectClock=yes` denies the whole @clock set, even a
-read) the call fails; then systemd-timesyncd's flag file answers instead.
+clock) and `maxerror`, the bound on the clock's error it maintains. The unit
+allows this read back (`SystemCallFilter=adjtimex clock_adjtime`, no capability to
+set anything); where it is refused all the same (another sandbox), the call
+fails and systemd-timesyncd's flag file answers instead.
 
 This module never sets the clock and never raises: an answer it cannot get is
 `synchronised=None`.
