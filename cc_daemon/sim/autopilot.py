@@ -1,20 +1,19 @@
 """The simulated Paparazzi autopilot: the deployed firmware's behaviour, sans-IO.
 
 This module owns what the autopilot side of the link does and what it checks,
-written from `shared/PROTOCOL.md` alone. It is a state machine driven by the
-caller: `poll(now)` returns the frames due at `now` (one per frame period),
-`on_frame(now, message)` and `on_corrupt(now, error)` take what arrived, and
-`finish(now)` closes the books. `now` is seconds since the mission started,
-from whatever clock the caller likes: tests pass plain numbers.
+written from the protocol (docs/protocol.md) and the firmware's own code, never
+from the daemon's. It is a state machine driven by the caller: `poll(now)`
+returns the frames due at `now` (one per frame period), `on_frame(now,
+message)` and `on_corrupt(now, error)` take what arrived, `finish(now)` closes
+the books; `now` is seconds since the mission started, on any clock.
 
 Two firmware profiles (`AutopilotConfig.firmware`):
 - "ucm-2023", the deployed firmware (serial_com.c of 2023, see
   docs/firmware.md): `T` every 1.1 s, timestamps little-endian on the wire,
   the 26-byte `M` (mode byte 0) sent once per station, then silence (no `T`,
   no `S`) until `R-F`; `R-O` and `R-M` are only stored. Optionally a scripted
-  RC-stick jog (`P-D` frames, then `P-U`) on arriving at the deepest
-  station, before `M` (`stick_jog`); the firmware expects no reply to them. A stray `R-F` (a repeat)
-  is accepted, as the firmware accepts it.
+  RC-stick jog (`P-D`, then `P-U`, no reply expected) on arriving at the
+  deepest station, before `M` (`stick_jog`). A repeated `R-F` is accepted.
 - "manual", the behaviour below, as the manual describes it.
 
 Behaviour of the "manual" profile:
@@ -32,14 +31,11 @@ It records a `Violation` for: a corrupt frame, `M` or `S` not answered within
 during a cast, `R-F` with a non-zero depth, a depth below the bottom or beyond
 the line, no `R-F` within `finish_timeout_s` of arriving, a frame that makes
 no sense in the current state, and (with `check_plan`) a cast at the shoal or
-a refusal at a deep station. Violations that injected link noise or a pulled
-cable can explain are recorded as excused, with the reason: noise only when
-the caller reported a flipped bit (`bits_flipped`) inside the window the
-check covers, a pulled cable only while it was out and for the daemon's
-reconnect time after.
+a refusal at a deep station. Violations that injected noise (a flipped bit
+reported with `bits_flipped` inside the check's window) or a pulled cable
+(while out, and the daemon's reconnect time after) explain are excused.
 
-It never does I/O, never sleeps, never reads a clock, and never looks inside
-the daemon.
+It never does I/O, sleeps, reads a clock or looks inside the daemon.
 """
 
 from __future__ import annotations

@@ -1,45 +1,33 @@
 """The journal's writer: a thread of its own that moves buffered rows into SQLite.
 
-This module owns getting rows into the journal file and keeping them safe
-until they are there: the writer thread and its one `sqlite3` connection,
-transactions, durability, a nearly full disk, retries, moving to a fresh file
-when the configured one can never be used, and the spill file at close. What
-the rows mean (tables, statements, sessions, casts) is the subclass's
-(`journal.Journal`); the rows wait in a `buffer.RowBuffer` meanwhile.
+It owns getting rows into the file and keeping them safe until they are there:
+the thread and its one connection, transactions, durability, a nearly full
+disk, retries, fresh files, the spill file at close. What rows mean is the
+subclass's (`journal.Journal`); they wait in a `buffer.RowBuffer` meanwhile.
+It must never block the event loop, nor raise into the daemon because storage
+or logging failed (disk full, read-only, locked, missing, corrupt; a lost log).
 
-It must never block the event loop and never raise into the daemon because
-storage (or logging) failed (disk full, read-only, locked, missing, corrupt;
-a log stream that is gone).
-
-Durability. Rows other than fixes (a cast's rows and events) wake the writer at
-once and are committed with `synchronous=FULL`, so they are on disk within
-milliseconds and survive `kill -9` and a power cut. Telemetry is committed at
-least every `FLUSH_INTERVAL_S` with `synchronous=NORMAL`: in WAL mode a NORMAL
-commit is in the WAL file (so it survives the process being killed) but the WAL
-is not fsynced, so a power cut could lose it. The WAL is append-only, so the
-next FULL commit's fsync makes every earlier frame durable too; the writer
-forces a FULL commit at least every `FULL_SYNC_INTERVAL_S`, which bounds
-telemetry lost to a power cut to that interval plus the flush interval (6 s)
-while sparing the SD card four fsyncs out of five between casts.
+Durability. Non-fix rows (a cast's rows, events) wake the writer at once and
+are committed with `synchronous=FULL`: on disk within milliseconds, surviving
+`kill -9` and a power cut. Fixes are committed at least every
+`FLUSH_INTERVAL_S` with `synchronous=NORMAL` (in the WAL, so they survive a
+kill, not fsynced); the WAL is append-only, so the next FULL commit makes every
+earlier frame durable, and one is forced at least every `FULL_SYNC_INTERVAL_S`:
+at most 6 s of telemetry lost to a power cut, four fsyncs in five spared.
 
 Transactions hold at most `MAX_TRANSACTION_ROWS` rows, cast rows and events
-before telemetry, so a backlog never has to fit on the disk all at once: on a
-nearly full disk what fits is committed (cast rows that do not fit are retried
-in halves) and only the rest waits. Below `LOW_SPACE_BYTES` free the WAL is
-checkpointed and truncated after every transaction, and below
-`FIX_RESERVE_BYTES` telemetry waits in memory, so the last of the disk is kept
-for casts.
+first, so a backlog never has to fit on the disk at once (cast rows that do not
+fit are retried in halves). Below `LOW_SPACE_BYTES` free the WAL is truncated
+after every transaction; below `FIX_RESERVE_BYTES` fixes wait in memory.
 
-When writing fails, the rows stay in the buffer, the error is logged at most
-every `LOG_INTERVAL_S` with a count of repeats, and the writer reconnects and
-retries every `RETRY_INTERVAL_S`. A file that can never be used (corrupt, not a
-database, another program's, a newer cc-daemon's) is left untouched and the
-journal goes on in a fresh file beside it (`<name>-<UTC stamp>.db`, else in the
-state directory, else in the temporary directory); `health().path` says which
-file is in use. Rows still unwritten when the journal closes are saved as JSON
-lines (`<name>-unwritten-<UTC stamp>.jsonl` beside the journal, else in the
-state directory; never in the temporary directory, which systemd's PrivateTmp
-wipes, nor under /dev, /proc or /sys) rather than lost.
+When writing fails the rows stay buffered, the error is logged at most every
+`LOG_INTERVAL_S` with a count, and the writer retries every `RETRY_INTERVAL_S`.
+A file that can never be used (corrupt, another program's, a newer version's)
+is left untouched for a fresh one beside it (`<name>-<UTC stamp>.db`, else in
+the state directory, else the temporary one; `health().path` names it). Rows
+unwritten at close are saved as JSON lines (`<name>-unwritten-<UTC
+stamp>.jsonl`) beside the journal or in the state directory, never in the
+temporary directory (PrivateTmp wipes it) nor under /dev, /proc or /sys.
 """
 
 from __future__ import annotations
