@@ -52,8 +52,10 @@ unit-tools:
 		{ apt-get update -qq && apt-get install -y -qq --no-install-recommends systemd >/dev/null; } ; } || \
 		echo "make: systemd-analyze not available and cannot be installed: the unit's checks will be skipped" >&2
 
+# Four workers on two cores: the suite mostly waits on real timers (whole casts end
+# to end, 1 s depth reports), not on the CPU; measured 4 min 15 s against 5 min 57 s.
 pytest: $(TEST_STAMP) unit-tools
-	$(BIN)/pytest -n 2 $(PYTEST_ARGS)
+	$(BIN)/pytest -n 4 $(PYTEST_ARGS)
 
 simulate: $(EXTRAS_STAMP)
 	$(BIN)/cc-daemon --simulate $(ARGS)
