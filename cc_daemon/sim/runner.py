@@ -144,14 +144,24 @@ async def run_simulation(options: SimOptions) -> int:
             drop_for=options.drop_link_for,
         )
         run.tap = LogTap(log_file, run.now)
+        # Logging first: the sonar link logs as it opens, and that belongs in the
+        # run's narration, not printed raw above the header.
+        configure_logging("json", settings.log.level, stream=cast(TextIO, run.tap))
         sonar = None
         if options.sonar:
             from cc_daemon.sim.sonar_chain import attach_sonar
 
-            sonar = await attach_sonar(
-                autopilot, run.now, port=options.sonar_port, workdir=Path(tmp), seed=options.seed
-            )
-        configure_logging("json", settings.log.level, stream=cast(TextIO, run.tap))
+            try:
+                sonar = await attach_sonar(
+                    autopilot,
+                    run.now,
+                    port=options.sonar_port,
+                    workdir=Path(tmp),
+                    seed=options.seed,
+                )
+            except BaseException:
+                reset_logging()
+                raise
         console.start(mission, _headline(options, mission))
         daemon_task = asyncio.create_task(daemon.run(), name="daemon")
         daemon_exit: int | None = None
