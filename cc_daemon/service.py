@@ -23,7 +23,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
@@ -58,12 +58,14 @@ from cc_daemon.protocol import (
     as_dict,
 )
 from cc_daemon.simgate import simulation_warning
-from cc_daemon.sonar.onboard import OnboardSonar
 from cc_daemon.sonde.duty import SondeDuty, make_sonde
 from cc_daemon.store import Journal
 from cc_daemon.systemd import SystemdNotifier
 from cc_daemon.winch.base import Winch, WinchStatus
 from cc_daemon.winch.factory import make_winch, prepare_winch
+
+if TYPE_CHECKING:
+    from cc_daemon.sonar.onboard import OnboardSonar
 
 _log = structlog.get_logger("cc_daemon.service")
 
@@ -157,7 +159,11 @@ class Daemon(CastRunner):
             reconnect_max_s=serial_settings.reconnect_max_s,
             on_waiting=lambda text: self._notifier.notify(f"STATUS={text}"),
         )
-        self.sonar = OnboardSonar.from_settings(settings.sonar, self._clock, lambda: self._journal)
+        self.sonar: OnboardSonar | None = None
+        if settings.sonar.port is not None:  # brping is loaded only where a Ping is wired
+            from cc_daemon.sonar.onboard import OnboardSonar
+
+            self.sonar = OnboardSonar(settings.sonar, self._clock, lambda: self._journal)
         self._cast: ActiveCast | None = None
         self._tasks: asyncio.TaskGroup | None = None
         self.last_fix: Fix | None = None

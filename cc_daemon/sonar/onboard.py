@@ -49,13 +49,6 @@ class OnboardSonar:
             on_state=self._on_state,
         )
 
-    @classmethod
-    def from_settings(
-        cls, settings: SonarSettings, clock: Clock, journal: Callable[[], Journal | None]
-    ) -> OnboardSonar | None:
-        """The onboard sonar, or None when `[sonar]` has no port (the default)."""
-        return None if settings.port is None else cls(settings, clock, journal)
-
     @property
     def port(self) -> str:
         return self.reader.port
