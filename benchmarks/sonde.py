@@ -110,7 +110,7 @@ def ps_latency(directory: Path, with_sonde: bool) -> tuple[list[float], int]:
     name = "ttyWith" if with_sonde else "ttyWithout"
     pty = PtyPair(directory / name)
     os.set_blocking(pty.master_fd, True)
-    config = daemon_config(directory, pty.path, report_period_s=3600.0)
+    config = daemon_config(directory, pty.path, report_period_s=10.0)  # the most allowed
     if with_sonde:
         with config.open("a") as f:
             f.write(
