@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -102,53 +102,7 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
         provenance = of_casts(casts)
         nc.winch_backend = provenance.winch_backend
         nc.simulated = provenance.simulated
-        nc.createDimension("profile", len(casts))
-        nc.createDimension("obs", len(kept))
-
-        def var(name: str, kind: str, dim: str, **attrs: Any) -> Any:
-            fill = attrs.pop("_FillValue", None)
-            variable = nc.createVariable(name, kind, (dim,), fill_value=fill)
-            variable.setncatts(attrs)
-            return variable
-
-        var("profile", "i4", "profile", cf_role="profile_id", long_name="cast id")[:] = [
-            c.id for c in casts
-        ]
-        var(
-            "time",
-            "f8",
-            "profile",
-            standard_name="time",
-            long_name="start of the cast",
-            units=TIME_UNITS,
-            calendar="standard",
-            axis="T",
-        )[:] = [_ms(c.start_wall_s) for c in casts]
-        var(
-            "lat",
-            "f8",
-            "profile",
-            standard_name="latitude",
-            long_name="station latitude",
-            units="degrees_north",
-            axis="Y",
-        )[:] = [_e7(c.lat_deg) for c in casts]
-        var(
-            "lon",
-            "f8",
-            "profile",
-            standard_name="longitude",
-            long_name="station longitude",
-            units="degrees_east",
-            axis="X",
-        )[:] = [_e7(c.lon_deg) for c in casts]
-        var(
-            "row_size",
-            "i4",
-            "profile",
-            long_name="number of samples in this profile",
-            sample_dimension="obs",
-        )[:] = [counts.get(c.id, 0) for c in casts]
+        var = profile_file(nc, casts, counts, n_obs=len(kept), rows_are="samples")
         var(
             "clock_synced",
             "i1",
@@ -219,3 +173,59 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
             coordinates="obs_time lat lon depth",
         )[:] = [_flag(s.phase, PHASE_FLAGS) for s in kept]
     return len(kept)
+
+
+def profile_file(
+    nc: Any, casts: Sequence[CastRecord], counts: Mapping[Any, int], *, n_obs: int, rows_are: str
+) -> Any:
+    """The CF profile layout every NetCDF export here shares (contiguous ragged
+    array): the dimensions, and per profile its id, start time, position and row
+    count. Returns the variable maker, `var(name, kind, dim, **attributes)`."""
+    nc.createDimension("profile", len(casts))
+    nc.createDimension("obs", n_obs)
+
+    def var(name: str, kind: str, dim: str, **attrs: Any) -> Any:
+        fill = attrs.pop("_FillValue", None)
+        variable = nc.createVariable(name, kind, (dim,), fill_value=fill)
+        variable.setncatts(attrs)
+        return variable
+
+    var("profile", "i4", "profile", cf_role="profile_id", long_name="cast id")[:] = [
+        c.id for c in casts
+    ]
+    var(
+        "time",
+        "f8",
+        "profile",
+        standard_name="time",
+        long_name="start of the cast",
+        units=TIME_UNITS,
+        calendar="standard",
+        axis="T",
+    )[:] = [_ms(c.start_wall_s) for c in casts]
+    var(
+        "lat",
+        "f8",
+        "profile",
+        standard_name="latitude",
+        long_name="station latitude",
+        units="degrees_north",
+        axis="Y",
+    )[:] = [_e7(c.lat_deg) for c in casts]
+    var(
+        "lon",
+        "f8",
+        "profile",
+        standard_name="longitude",
+        long_name="station longitude",
+        units="degrees_east",
+        axis="X",
+    )[:] = [_e7(c.lon_deg) for c in casts]
+    var(
+        "row_size",
+        "i4",
+        "profile",
+        long_name=f"number of {rows_are} in this profile",
+        sample_dimension="obs",
+    )[:] = [counts.get(c.id, 0) for c in casts]
+    return var

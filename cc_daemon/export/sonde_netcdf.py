@@ -23,11 +23,11 @@ from typing import Any
 
 from cc_daemon import __version__
 from cc_daemon.export import OptionalDependencyError
+from cc_daemon.export.netcdf import TIME_UNITS, profile_file
 from cc_daemon.export.sonde import Column
 from cc_daemon.store.reader import CastRecord
 from cc_daemon.store.sonde import SondeSampleRecord
 
-TIME_UNITS = "seconds since 1970-01-01 00:00:00 UTC"
 PHASE_FLAGS = ("soaking", "descending", "dwelling", "ascending", "aborting", "stranded")
 BYTE_FILL = -127
 # UDUNITS spellings for the units a sonde map is likely to use.
@@ -73,53 +73,13 @@ def write(
             " NaN with their reason in the journal."
             + (" SIMULATED DATA: read from the simulated sonde." if simulated else "")
         )
-        nc.createDimension("profile", len(casts))
-        nc.createDimension("obs", len(kept))
-
-        def var(name: str, kind: str, dim: str, **attrs: Any) -> Any:
-            fill = attrs.pop("_FillValue", None)
-            variable = nc.createVariable(name, kind, (dim,), fill_value=fill)
-            variable.setncatts(attrs)
-            return variable
-
-        var("profile", "i4", "profile", cf_role="profile_id", long_name="cast id")[:] = [
-            c.id for c in casts
-        ]
-        var(
-            "time",
-            "f8",
-            "profile",
-            standard_name="time",
-            long_name="start of the cast",
-            units=TIME_UNITS,
-            calendar="standard",
-            axis="T",
-        )[:] = [c.start_wall_s for c in casts]
-        var(
-            "lat",
-            "f8",
-            "profile",
-            standard_name="latitude",
-            long_name="station latitude",
-            units="degrees_north",
-            axis="Y",
-        )[:] = [c.lat_deg for c in casts]
-        var(
-            "lon",
-            "f8",
-            "profile",
-            standard_name="longitude",
-            long_name="station longitude",
-            units="degrees_east",
-            axis="X",
-        )[:] = [c.lon_deg for c in casts]
-        var("row_size", "i4", "profile", long_name="number of readings in this profile",
-            sample_dimension="obs")[:] = [counts.get(c.id, 0) for c in casts]  # fmt: skip
+        var = profile_file(nc, casts, counts, n_obs=len(kept), rows_are="readings")
 
         var(
             "obs_time",
             "f8",
             "obs",
+            standard_name="time",
             long_name="time of the reading's request",
             units=TIME_UNITS,
             calendar="standard",
