@@ -273,3 +273,7 @@ def main() -> int:
     print(f"resident memory: {rss:.1f} MB (<= 50) {verdict(rss <= 50)}")
     print(f"process start to answering S: {startup:.3f} s (<= 1.5) {verdict(startup <= 1.5)}")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

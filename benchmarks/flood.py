@@ -13,7 +13,7 @@ another reads the replies and times each R-P from its request. Reported:
   journaled and counted as thinned;
 - P-S reply latency (p50, p99, max) under the flood, and that every P-S was answered.
 
-    python -m benchmarks flood      (or: make bench; BENCH_FLOOD_S=10 for a short run)
+    python -m benchmarks.flood      (or: make bench; BENCH_FLOOD_S=10 for a short run)
 """
 
 from __future__ import annotations

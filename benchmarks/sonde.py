@@ -197,3 +197,7 @@ def main() -> int:
         f"{verdict(s99 - w99 <= 0.5)} ({readings} sonde readings journaled meanwhile)"
     )
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

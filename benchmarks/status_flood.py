@@ -7,7 +7,7 @@ garbage), then well-behaved readers as fast as they can. Printed: R-P latency
 (median, p99, max) in each phase, documents served per second, the document's
 size, and what the flood's clients got.
 
-    python -m benchmarks status_flood      (or: make bench)
+    python -m benchmarks.status_flood      (or: make bench)
 """
 
 from __future__ import annotations
