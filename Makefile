@@ -12,7 +12,7 @@ EXTRAS_STAMP := $(VENV)/.installed-extras
 # The journal `make export` and `make plot` read: the simulator's, by default.
 DB ?= simulate.db
 
-.PHONY: unit-tools test lint typecheck pytest simulate extras export plot bench clean install uninstall
+.PHONY: unit-tools test lint typecheck imports pytest simulate extras export plot bench clean install uninstall
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "cc-daemon needs Python >= 3.11; set PYTHON=python3.11")'
@@ -35,7 +35,7 @@ $(BENCH_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
 	@touch $@ $(TEST_STAMP) $(BASE_STAMP) $(EXTRAS_STAMP)
 
-test: lint typecheck pytest
+test: lint typecheck imports pytest
 
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check .
@@ -43,6 +43,10 @@ lint: $(TEST_STAMP)
 
 typecheck: $(TEST_STAMP)
 	$(BIN)/mypy
+
+# The floors of docs/architecture.md: every import points down (contracts in pyproject.toml).
+imports: $(TEST_STAMP)
+	$(BIN)/lint-imports
 
 # The unit's hardening is checked with systemd-analyze (tests/test_unit_hardening.py).
 # Where it is missing, install Debian's systemd package if we can (root, apt); else

@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     ProbePositionRequest,
     StartMeasuring,
     Telemetry,

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 from benchmarks.daemon import percentile, rss_mb, start_daemon, wait_first_answer
-from cc_daemon.protocol import ProbePositionRequest, Telemetry, encode
+from cc_daemon.core.protocol import ProbePositionRequest, Telemetry, encode
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.store import Journal
 

@@ -24,9 +24,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
 from cc_daemon.export import csv as csv_export
 from cc_daemon.export import geojson
-from cc_daemon.protocol import StartMeasuring, Telemetry
 from cc_daemon.store import Journal, JournalReader
 from cc_daemon.store.synthetic import FakeClock, SurveySummary, write_survey
 

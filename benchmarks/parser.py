@@ -4,7 +4,7 @@ One byte stream of 200,000 mixed frames (all seven types, realistic values,
 fixed seed) and a twin with about 1 % garbage bytes between frames, each fed
 in 4 KiB chunks and again one byte at a time, to:
 
-- `cc_daemon.protocol.Parser` (ours);
+- `cc_daemon.core.protocol.Parser` (ours);
 - `benchmarks.reference_parser.ReferenceParser`, a byte-at-a-time state
   machine ported from how the firmware parses (the reference for the ratios);
 - pymavlink's MAVLink v2 parser and brping's Ping parser, as peers, on streams
@@ -31,8 +31,7 @@ from brping import PingMessage, PingParser, definitions
 from pymavlink.dialects.v20 import common as mavlink
 
 from benchmarks.reference_parser import ReferenceParser
-from cc_daemon.logsetup import configure_logging, reset_logging
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     Ack,
     DepthReport,
     Finished,
@@ -44,7 +43,8 @@ from cc_daemon.protocol import (
     Telemetry,
     encode,
 )
-from cc_daemon.sonar.ping import PING1D_TABLE
+from cc_daemon.drivers.sonar.ping import PING1D_TABLE
+from cc_daemon.ground.logsetup import configure_logging, reset_logging
 
 N_FRAMES = 200_000
 SEED = 20_240_601

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from cc_daemon.errors import FieldError
-from cc_daemon.protocol import (
+from cc_daemon.core.errors import FieldError
+from cc_daemon.core.protocol import (
     Ack,
     DepthReport,
     Finished,

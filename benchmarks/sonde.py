@@ -34,13 +34,13 @@ from benchmarks.daemon import (
     start_daemon,
     wait_first_answer,
 )
-from cc_daemon.clock import SystemClock
 from cc_daemon.config import Settings
+from cc_daemon.config.sonde import SondeSettings
+from cc_daemon.daemon.sonde import SondeDuty
+from cc_daemon.drivers.sonde.reader import SondeReader
+from cc_daemon.ground.clock import SystemClock
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.sonde import SimulatedSonde
-from cc_daemon.sonde.duty import SondeDuty
-from cc_daemon.sonde.reader import SondeReader
-from cc_daemon.sonde.settings import SondeSettings
 from cc_daemon.store import JournalReader
 
 SAMPLES = 50

@@ -30,9 +30,9 @@ from benchmarks.daemon import (
     start_daemon,
     wait_first_answer,
 )
-from cc_daemon.protocol import ProbePositionRequest, encode
+from cc_daemon.cli.status.client import read_status
+from cc_daemon.core.protocol import ProbePositionRequest, encode
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.status.client import read_status
 
 FLOOD = 1000
 

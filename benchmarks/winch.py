@@ -23,12 +23,12 @@ import threading
 import time
 from typing import Any
 
-from cc_daemon.clock import SystemClock
 from cc_daemon.config import WinchGpioSettings
-from cc_daemon.winch.devices import open_devices
-from cc_daemon.winch.gpio import GpioWinch
-from cc_daemon.winch.mockdrum import MockWinchFactory
-from cc_daemon.winch.motor import Direction
+from cc_daemon.drivers.winch.devices import open_devices
+from cc_daemon.drivers.winch.gpio import GpioWinch
+from cc_daemon.drivers.winch.motor import Direction
+from cc_daemon.ground.clock import SystemClock
+from cc_daemon.sim.drum import MockWinchFactory
 
 SWITCH_TRIALS = 300
 WATCHDOG_TRIALS = 8
@@ -110,7 +110,7 @@ def _ms(values: list[float]) -> str:
 
 
 def main() -> int:
-    from cc_daemon.logsetup import configure_logging
+    from cc_daemon.ground.logsetup import configure_logging
 
     configure_logging("console", "critical", sys.stderr)  # the figures, not the winch's log
     switch = asyncio.run(_switch_latency())

@@ -1,5 +1,5 @@
 """`python -m cc_daemon` runs the command-line interface."""
 
-from cc_daemon.cli import main
+from cc_daemon.cli.app import main
 
 raise SystemExit(main())

@@ -11,7 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from cc_daemon.cast.machine import (
+from cc_daemon.config import Settings
+from cc_daemon.core.cast.machine import (
     Action,
     Alarm,
     CastMachine,
@@ -21,10 +22,9 @@ from cc_daemon.cast.machine import (
     SendFinished,
     StopWinch,
 )
-from cc_daemon.cast.plan import CastPlan, plan_cast
-from cc_daemon.config import Settings
-from cc_daemon.protocol import StartMeasuring
-from cc_daemon.winch.physics import LinePhysics
+from cc_daemon.core.cast.plan import CastPlan, plan_cast
+from cc_daemon.core.protocol import StartMeasuring
+from cc_daemon.core.winch.physics import LinePhysics
 
 MADRID_LAT_E7 = 404506308
 MADRID_LON_E7 = -37260579

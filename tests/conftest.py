@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from cc_daemon.logsetup import reset_logging
+from cc_daemon.ground.logsetup import reset_logging
 from tests.daemonkit import DaemonProcess
 
 

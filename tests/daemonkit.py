@@ -19,14 +19,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from cc_daemon.protocol import Message, ProbePosition, ProbePositionRequest, StartMeasuring
+from cc_daemon.core.protocol import Message, ProbePosition, ProbePositionRequest, StartMeasuring
 from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
 
 REPO = Path(__file__).resolve().parent.parent
 
 # Fast casts: 3 m at 1 m/s, 1 s at the bottom -> R-F about 7 s after R-O. The
-# simulated winch outside --simulate must be asked for by name (cc_daemon.simgate).
+# simulated winch outside --simulate must be asked for by name (cc_daemon.daemon.simgate).
 FAST_CAST: dict[str, Any] = {
     "winch": {
         "backend": "sim",

@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cc_daemon.clock import SystemClock
 from cc_daemon.config import WinchGpioSettings
-from cc_daemon.winch.devices import open_devices
-from cc_daemon.winch.gpio import GpioWinch
-from cc_daemon.winch.mockdrum import DrumFaults, SimulatedDrum
+from cc_daemon.drivers.winch.devices import open_devices
+from cc_daemon.drivers.winch.gpio import GpioWinch
+from cc_daemon.ground.clock import SystemClock
+from cc_daemon.sim.drum import DrumFaults, SimulatedDrum
 
 REPO = Path(__file__).resolve().parent.parent
 

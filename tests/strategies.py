@@ -16,8 +16,8 @@ from typing import Any, NamedTuple
 
 from hypothesis import strategies as st
 
-from cc_daemon.errors import FieldError
-from cc_daemon.protocol import (
+from cc_daemon.core.errors import FieldError
+from cc_daemon.core.protocol import (
     Ack,
     DepthReport,
     Finished,

@@ -9,11 +9,11 @@ from hypothesis import given
 from hypothesis import settings as hyp_settings
 from hypothesis import strategies as st
 
-from cc_daemon.cast.machine import CastMachine, Outcome, ReportDepth
-from cc_daemon.cast.plan import Phase
-from cc_daemon.errors import TransitionError
-from cc_daemon.winch.base import WinchStatus
-from cc_daemon.winch.physics import HOME_TOLERANCE_M, LinePhysics
+from cc_daemon.core.cast.machine import CastMachine, Outcome, ReportDepth
+from cc_daemon.core.cast.plan import Phase
+from cc_daemon.core.errors import TransitionError
+from cc_daemon.core.winch.physics import HOME_TOLERANCE_M, LinePhysics
+from cc_daemon.core.winch.status import WinchStatus
 from tests.castkit import drive, plan_for, settings, station
 
 START = 1000.0

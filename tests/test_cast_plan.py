@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from cc_daemon.cast.plan import CastPlan, Hold, Move, Phase, SkipCast, plan_cast
+from cc_daemon.core.cast.plan import CastPlan, Hold, Move, Phase, SkipCast, plan_cast
 from tests.castkit import settings, station
 
 

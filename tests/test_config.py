@@ -16,7 +16,7 @@ from cc_daemon.config import (
     Settings,
     load_settings,
 )
-from cc_daemon.errors import ConfigError
+from cc_daemon.core.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE_TOML = ROOT / "config" / "cc-daemon.toml"
@@ -485,7 +485,7 @@ def documented_keys(text: str) -> set[str]:
 def test_example_file_loads_to_the_defaults() -> None:
     settings = load(EXAMPLE_TOML)
     # Every default, except that the shipped file selects the real winch: the
-    # built-in "sim" is refused outside --simulate (cc_daemon.simgate).
+    # built-in "sim" is refused outside --simulate (cc_daemon.daemon.simgate).
     expected = Settings.model_validate({"winch": {"backend": "gpio"}}).model_dump()
     assert settings.model_dump() == expected
     assert settings.source_file == EXAMPLE_TOML

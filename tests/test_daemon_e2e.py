@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import pytest
 
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     Ack,
     DepthReport,
     Finished,

@@ -15,10 +15,9 @@ from typing import Any
 import pytest
 import structlog
 
-from cc_daemon.cast.timestamps import swap_bytes
-from cc_daemon.clock import SystemClock
 from cc_daemon.config import Settings
-from cc_daemon.protocol import (
+from cc_daemon.core.cast.timestamps import swap_bytes
+from cc_daemon.core.protocol import (
     Ack,
     DepthReport,
     Finished,
@@ -29,12 +28,13 @@ from cc_daemon.protocol import (
     ProbeUp,
     Telemetry,
 )
-from cc_daemon.service import EXIT_OK, Daemon
+from cc_daemon.core.winch.physics import LinePhysics
+from cc_daemon.daemon.service import EXIT_OK, Daemon
+from cc_daemon.daemon.systemd import SystemdNotifier
+from cc_daemon.drivers.winch.simulated import SimulatedWinch
+from cc_daemon.ground.clock import SystemClock
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.systemd import SystemdNotifier
-from cc_daemon.winch.physics import LinePhysics
-from cc_daemon.winch.simulated import SimulatedWinch
 from tests.daemonkit import FAST_CAST, merge, station
 from tests.test_firmware_frames import M_26
 

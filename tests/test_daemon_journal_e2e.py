@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.protocol import Ack, DepthReport, Finished, ProbePosition, ProbePositionRequest
+from cc_daemon.core.protocol import Ack, DepthReport, Finished, ProbePosition, ProbePositionRequest
 from tests.daemonkit import DaemonProcess, station
 from tests.test_journal_faults import read_only
 

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon import datacli
-from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.cli import data as datacli
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
 from cc_daemon.store import Journal, JournalReader
 from cc_daemon.store.synthetic import FakeClock, SurveySummary, write_survey
 

@@ -1,6 +1,6 @@
 """`cc-daemon decode`: hex arguments, hex or raw stdin, plain and JSON output, exit status.
 
-Most tests call `cc_daemon.cli.main` in-process, with the parser's structlog
+Most tests call `cc_daemon.cli.app.main` in-process, with the parser's structlog
 events captured (unconfigured, structlog prints them to stdout). A few run the
 real command in a subprocess, which is where anything else writing to stdout
 (a stray print, an unconfigured logger) would corrupt the JSON lines.
@@ -19,7 +19,7 @@ from typing import Any
 import pytest
 import structlog
 
-from cc_daemon.cli import main
+from cc_daemon.cli.app import main
 from tests.test_protocol_examples import EXAMPLES, MANUAL_P_T, P_G
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import structlog
 
-from cc_daemon.cli import main
-from cc_daemon.decode import looks_like_hex
+from cc_daemon.cli.app import main
+from cc_daemon.cli.decode import looks_like_hex
 from tests.daemonkit import REPO
 from tests.test_live_decode_and_systemd import _read_lines
 from tests.test_protocol_examples import EXAMPLES

@@ -19,12 +19,12 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.doctor.checks import Check, run_checks
-from cc_daemon.doctor.cli import format_checks
-from cc_daemon.doctor.system import System
+from cc_daemon.cli.doctor.checks import Check, run_checks
+from cc_daemon.cli.doctor.command import format_checks
+from cc_daemon.cli.doctor.system import System
+from cc_daemon.daemon.status_server import StatusServer
+from cc_daemon.ground.clocksync import ClockSync
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.status.clocksync import ClockSync
-from cc_daemon.status.server import StatusServer
 from tests.daemonkit import REPO
 
 SERVICE_UID = 4242  # neither root nor the test: access is decided by groups and modes

@@ -15,8 +15,8 @@ import structlog
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cc_daemon.decode import decode_chunks, format_event
-from cc_daemon.protocol import (
+from cc_daemon.cli.decode import decode_chunks, format_event
+from cc_daemon.core.protocol import (
     CorruptFrame,
     ErrorKind,
     Parser,

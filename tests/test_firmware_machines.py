@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from cc_daemon.cast.jog import (
+from cc_daemon.core.cast.jog import (
     AT_HOME,
     LINE_END,
     RELEASED,
@@ -17,10 +17,10 @@ from cc_daemon.cast.jog import (
     MoveWinch,
     Stick,
 )
-from cc_daemon.cast.lost_start import LostStartWatch
-from cc_daemon.cast.rf_repeat import RfRepeater
-from cc_daemon.protocol import Finished
-from cc_daemon.winch.base import WinchStatus
+from cc_daemon.core.cast.lost_start import LostStartWatch
+from cc_daemon.core.cast.rf_repeat import RfRepeater
+from cc_daemon.core.protocol import Finished
+from cc_daemon.core.winch.status import WinchStatus
 
 HOME = WinchStatus(0.0, False, True, None)
 

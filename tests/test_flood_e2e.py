@@ -12,7 +12,7 @@ from collections.abc import Callable
 
 import pytest
 
-from cc_daemon.protocol import ProbePosition, ProbePositionRequest, Telemetry, encode
+from cc_daemon.core.protocol import ProbePosition, ProbePositionRequest, Telemetry, encode
 from tests.daemonkit import DaemonProcess
 
 pytestmark = pytest.mark.slow

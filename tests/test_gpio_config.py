@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.cli import main
+from cc_daemon.cli.app import main
 from cc_daemon.config import load_settings
-from cc_daemon.errors import ConfigError
-from cc_daemon.winch.drum import CurrentSensor, Drum, VoltageDivider, current_fraction
-from cc_daemon.winch.safety import Limits, MotionGuard
+from cc_daemon.core.errors import ConfigError
+from cc_daemon.core.winch.drum import CurrentSensor, Drum, VoltageDivider, current_fraction
+from cc_daemon.core.winch.safety import Limits, MotionGuard
 
 PREFIX = "cc-daemon: bad configuration: "
 

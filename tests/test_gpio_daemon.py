@@ -20,20 +20,21 @@ from typing import Any
 
 import pytest
 
-from cc_daemon.cli import main
+from cc_daemon.cli.app import main
 from cc_daemon.config import Settings
-from cc_daemon.errors import ConfigError
+from cc_daemon.core.errors import ConfigError
+from cc_daemon.core.protocol import DepthReport, Finished
+from cc_daemon.daemon.service import EXIT_PROBE_MAY_BE_DOWN, Daemon
+from cc_daemon.daemon.simgate import backend_name, check_backend_allowed, simulation_warning
+from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.export import csv as csv_export
 from cc_daemon.export import geojson
 from cc_daemon.export.provenance import of_casts
-from cc_daemon.protocol import DepthReport, Finished
-from cc_daemon.service import EXIT_PROBE_MAY_BE_DOWN, Daemon
+from cc_daemon.sim.devices import SIMULATORS
+from cc_daemon.sim.drum import DrumFaults
 from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.simgate import backend_name, check_backend_allowed, simulation_warning
 from cc_daemon.store import Journal, JournalReader
-from cc_daemon.systemd import SystemdNotifier
-from cc_daemon.winch.mockdrum import DrumFaults
 from tests.daemonkit import FAST_CAST, merge, station
 from tests.gpiokit import GpioRig, gpio_rig
 from tests.test_gpio_winch import enable_history
@@ -323,7 +324,8 @@ async def test_a_stuck_daemon_loop_stops_the_motor_and_the_fault_is_journaled(
         settings = _settings(tmp_path, pty.path)
         gpio = {"pin_factory": "mock", "loop_watchdog_s": 0.3, "line_speed_m_s": 2.0}
         settings = Settings.model_validate(merge(settings.model_dump(), {"winch": {"gpio": gpio}}))
-        daemon = Daemon(settings)  # the daemon builds the mock winch and its drum itself
+        # The daemon builds the mock winch; the drum behind it is the simulator's, handed in.
+        daemon = Daemon(settings, simulators=SIMULATORS)
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
         await asyncio.wait_for(daemon.ready.wait(), 5)
@@ -359,7 +361,7 @@ async def test_the_simulated_winchs_fault_keys_jam_the_mock_drum(tmp_path: Path)
             "sim": {"stall_at_m": 1.0},
         }
         settings = Settings.model_validate(merge(settings.model_dump(), {"winch": extra}))
-        daemon = Daemon(settings)
+        daemon = Daemon(settings, simulators=SIMULATORS)
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
         await asyncio.wait_for(daemon.ready.wait(), 5)

@@ -16,9 +16,9 @@ import time
 import pytest
 import structlog
 
-from cc_daemon.errors import WinchFault
-from cc_daemon.winch.mockdrum import DrumFaults
-from cc_daemon.winch.motor import Direction
+from cc_daemon.core.errors import WinchFault
+from cc_daemon.drivers.winch.motor import Direction
+from cc_daemon.sim.drum import DrumFaults
 from tests.gpiokit import REPO, GpioRig, gpio_rig
 
 MPP = 3.141592653589793 * 0.09 / 2  # metres of line per pulse with the kit's drum
@@ -266,11 +266,11 @@ def test_the_motor_is_switched_off_at_interpreter_exit() -> None:
         """
         import asyncio, atexit
         from tests.gpiokit import settings
-        from cc_daemon.clock import SystemClock
-        from cc_daemon.winch.devices import open_devices
-        from cc_daemon.winch.gpio import GpioWinch
-        from cc_daemon.winch.mockdrum import SimulatedDrum
-        from cc_daemon.winch.motor import Direction
+        from cc_daemon.ground.clock import SystemClock
+        from cc_daemon.drivers.winch.devices import open_devices
+        from cc_daemon.drivers.winch.gpio import GpioWinch
+        from cc_daemon.sim.drum import SimulatedDrum
+        from cc_daemon.drivers.winch.motor import Direction
 
         cfg = settings()
         factory = SimulatedDrum.factory_for(cfg)

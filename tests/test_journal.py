@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 from structlog.testing import capture_logs
 
-from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
 from cc_daemon.store import Journal, default_store_path, writer
 from cc_daemon.store.synthetic import FakeClock
 
@@ -436,7 +436,7 @@ def test_by_default_the_journal_asks_the_kernel_as_the_status_does(
 ) -> None:
     import ctypes.util
 
-    from cc_daemon.status import clocksync
+    from cc_daemon.ground import clocksync
 
     expected = clocksync.clock_sync().synchronised is True
     # libc is found once per process, never again from the event loop.

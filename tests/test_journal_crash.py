@@ -25,7 +25,7 @@ WRITER = textwrap.dedent(
     """
     import sys, time
     from pathlib import Path
-    from cc_daemon.protocol import StartMeasuring, Telemetry
+    from cc_daemon.core.protocol import StartMeasuring, Telemetry
     from cc_daemon.store import Journal
 
     journal = Journal(Path(sys.argv[1]))

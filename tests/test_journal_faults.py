@@ -28,7 +28,7 @@ from pathlib import Path
 import pytest
 from structlog.testing import capture_logs
 
-from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
 from cc_daemon.store import Journal, failures
 from cc_daemon.store.schema import APPLICATION_ID
 from tests.journalkit import full_journal

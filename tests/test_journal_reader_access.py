@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
 from cc_daemon.store import Journal, JournalReader
 
 FIX = Telemetry(72, -37260579, 404506308, 702385, 8219, 100)

@@ -24,8 +24,8 @@ from typing import Any
 import pytest
 from structlog.testing import capture_logs
 
-from cc_daemon.logsetup import configure_logging
-from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
+from cc_daemon.ground.logsetup import configure_logging
 from cc_daemon.store import Journal, writer
 from tests.journalkit import full_journal
 

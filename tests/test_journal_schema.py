@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.protocol import StartMeasuring
+from cc_daemon.core.protocol import StartMeasuring
 from cc_daemon.store import SCHEMA_VERSION, Journal, JournalReader, StoreError
 from cc_daemon.store.schema import APPLICATION_ID
 

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.protocol import Ack, DepthReport, ProbePositionRequest, encode
+from cc_daemon.core.protocol import Ack, DepthReport, ProbePositionRequest, encode
+from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.systemd import SystemdNotifier
 from tests.daemonkit import REPO
 
 

@@ -8,7 +8,7 @@ import os
 
 import structlog
 
-from cc_daemon.logsetup import configure_logging, output_loss
+from cc_daemon.ground.logsetup import configure_logging, output_loss
 
 
 class DeadTerminal(io.StringIO):

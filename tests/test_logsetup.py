@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 import structlog
 
-from cc_daemon.logsetup import (
+from cc_daemon.ground.logsetup import (
     RateLimiter,
     configure_logging,
     flush_rate_limited,
@@ -212,7 +212,9 @@ def test_reconfiguring_replaces_stream_level_and_format(clock: FakeClock) -> Non
     output = second.getvalue().splitlines()
     assert len(output) == 2
     assert all("three" in line and not line.startswith("{") for line in output)
-    ours = [h for h in logging.getLogger().handlers if type(h).__module__ == "cc_daemon.logsetup"]
+    ours = [
+        h for h in logging.getLogger().handlers if type(h).__module__ == "cc_daemon.ground.logsetup"
+    ]
     assert len(ours) == 1
 
 
@@ -225,7 +227,7 @@ def test_reset_removes_our_handler(clock: FakeClock) -> None:
     json_logging(clock)
     reset_logging()
     assert not [
-        h for h in logging.getLogger().handlers if type(h).__module__ == "cc_daemon.logsetup"
+        h for h in logging.getLogger().handlers if type(h).__module__ == "cc_daemon.ground.logsetup"
     ]
     assert flush_rate_limited() == 0
 

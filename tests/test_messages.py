@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cc_daemon.errors import FieldError, ProtocolError
-from cc_daemon.protocol import (
+from cc_daemon.core.errors import FieldError, ProtocolError
+from cc_daemon.core.protocol import (
     MESSAGE_TYPES,
     Ack,
     AutopilotType,

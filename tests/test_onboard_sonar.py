@@ -12,20 +12,20 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.cast.bottom import (
+from cc_daemon.config import Settings
+from cc_daemon.core.cast.bottom import (
     AUTOPILOT,
     ONBOARD,
     Sounding,
     freshest_bottom,
     station_for_plan,
 )
-from cc_daemon.config import Settings
-from cc_daemon.protocol import Ack, Finished
-from cc_daemon.service import EXIT_OK, Daemon
+from cc_daemon.core.protocol import Ack, Finished
+from cc_daemon.daemon.service import EXIT_OK, Daemon
+from cc_daemon.drivers.sonar import ping
 from cc_daemon.sim.ping1d import Echo, Ping1DDevice, Ping1DServer
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.sonar import ping
 from tests.daemonkit import FAST_CAST, DaemonProcess, merge, station
 
 

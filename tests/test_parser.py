@@ -17,8 +17,7 @@ import pytest
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
-from cc_daemon.logsetup import configure_logging
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     Ack,
     CorruptFrame,
     ErrorKind,
@@ -31,6 +30,7 @@ from cc_daemon.protocol import (
     Telemetry,
     encode,
 )
+from cc_daemon.ground.logsetup import configure_logging
 from tests import strategies as cs
 from tests.test_protocol_examples import EXAMPLES, MANUAL_P_T, frame
 
@@ -304,7 +304,7 @@ def test_corrupt_frames_are_not_logged_above_debug() -> None:
 def test_the_parser_as_a_library_is_silent_unless_logging_is_configured() -> None:
     # A fresh interpreter: nothing configured, as for any program importing the parser.
     code = (
-        "from cc_daemon.protocol import Parser\n"
+        "from cc_daemon.core.protocol import Parser\n"
         f"p = Parser(); p.feed(bytes.fromhex({MANUAL_P_T.hex()!r}) + b'PX'); p.close()\n"
         "assert p.stats.errors == 2, p.stats\n"
     )

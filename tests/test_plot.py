@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from cc_daemon.export import OptionalDependencyError
-from cc_daemon.plot import plot_cast, plot_survey
+from cc_daemon.export.plot import plot_cast, plot_survey
 from cc_daemon.store import Journal, JournalReader
 from cc_daemon.store.synthetic import FakeClock, write_survey
 
@@ -112,7 +112,7 @@ def test_the_extension_says_the_format_and_others_are_refused(
 
 
 def test_the_cast_legend_hides_no_data(survey_db: Path) -> None:
-    from cc_daemon.plot import cast_figure
+    from cc_daemon.export.plot import cast_figure
 
     with JournalReader(survey_db) as reader:
         figure = cast_figure(reader.casts(cast_id=2)[0], reader.samples(cast_id=2))
@@ -126,7 +126,7 @@ def test_the_cast_legend_hides_no_data(survey_db: Path) -> None:
 
 
 def test_each_station_outcome_looks_and_reads_differently(survey_db: Path) -> None:
-    from cc_daemon.plot import _STATIONS, _station_label
+    from cc_daemon.export.plot import _STATIONS, _station_label
     from cc_daemon.store.journal import OUTCOMES
 
     assert set(_STATIONS) == {*OUTCOMES, "running"}

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from cc_daemon.config import load_settings
-from cc_daemon.errors import ConfigError
-from cc_daemon.preflight import (
+from cc_daemon.core.errors import ConfigError
+from cc_daemon.daemon.preflight import (
     check_paths,
     open_journal,
     serial_port_problem,

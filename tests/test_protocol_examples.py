@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     Ack,
     AutopilotType,
     CorruptFrame,

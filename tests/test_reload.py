@@ -11,9 +11,9 @@ from typing import Any
 import pytest
 
 from cc_daemon.config import Settings, load_settings
-from cc_daemon.errors import ConfigError
-from cc_daemon.logsetup import configure_logging
-from cc_daemon.reload import Reloader, ReloadRefused, is_live, plan_reload
+from cc_daemon.core.errors import ConfigError
+from cc_daemon.daemon.reload import Reloader, ReloadRefused, is_live, plan_reload
+from cc_daemon.ground.logsetup import configure_logging
 
 
 def settings(**sections: Any) -> Settings:

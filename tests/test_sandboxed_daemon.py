@@ -36,8 +36,8 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.protocol import Finished
-from cc_daemon.status.client import read_status
+from cc_daemon.cli.status.client import read_status
+from cc_daemon.core.protocol import Finished
 from tests.daemonkit import REPO, DaemonProcess, station, toml_text
 
 TOOLS = ("unshare", "setpriv", "systemd-analyze")

@@ -14,16 +14,16 @@ from typing import Any
 import pytest
 import structlog
 
-from cc_daemon.cast.machine import CastMachine
-from cc_daemon.clock import SystemClock
 from cc_daemon.config import Settings
-from cc_daemon.protocol import Ack, DepthReport, Finished, ProbePositionRequest
-from cc_daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, Daemon
+from cc_daemon.core.cast.machine import CastMachine
+from cc_daemon.core.protocol import Ack, DepthReport, Finished, ProbePositionRequest
+from cc_daemon.core.winch.physics import LinePhysics
+from cc_daemon.daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, Daemon
+from cc_daemon.daemon.systemd import SystemdNotifier
+from cc_daemon.drivers.winch.simulated import SimulatedWinch
+from cc_daemon.ground.clock import SystemClock
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.systemd import SystemdNotifier
-from cc_daemon.winch.physics import LinePhysics
-from cc_daemon.winch.simulated import SimulatedWinch
 from tests.daemonkit import FAST_CAST, merge, station
 
 
@@ -157,7 +157,7 @@ async def test_a_crashing_background_task_does_not_touch_the_cast(
     def crash(**_: Any) -> int:
         raise RuntimeError("housekeeping bug")
 
-    monkeypatch.setattr("cc_daemon.service.flush_rate_limited", crash)
+    monkeypatch.setattr("cc_daemon.daemon.service.flush_rate_limited", crash)
     with PtyPair(tmp_path / "tty") as pty, structlog.testing.capture_logs() as logs:
         daemon = Daemon(_settings(tmp_path, pty.path))
         port = await FramePort.over_fd(pty.master_fd)

@@ -21,8 +21,8 @@ from collections.abc import Callable
 import pytest
 
 from cc_daemon.config import load_settings
-from cc_daemon.errors import ConfigError
-from cc_daemon.protocol import Ack, DepthReport, Finished
+from cc_daemon.core.errors import ConfigError
+from cc_daemon.core.protocol import Ack, DepthReport, Finished
 from tests.daemonkit import REPO, DaemonProcess, merge, station, toml_text
 
 pytestmark = pytest.mark.slow

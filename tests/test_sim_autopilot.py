@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     Ack,
     CorruptFrame,
     DepthReport,

@@ -6,7 +6,7 @@ import io
 import os
 from pathlib import Path
 
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     Ack,
     CorruptFrame,
     DepthReport,

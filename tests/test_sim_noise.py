@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import pytest
 
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     CorruptFrame,
     DepthReport,
     Finished,

@@ -14,6 +14,8 @@ import pytest
 import serial_asyncio
 from brping import Ping1D, PingParser, definitions
 
+from cc_daemon.drivers.sonar import ping
+from cc_daemon.drivers.sonar.ping import PING1D_TABLE
 from cc_daemon.sim.mission import make_mission
 from cc_daemon.sim.ping1d import (
     SPEED_OF_SOUND_MM_S,
@@ -23,8 +25,6 @@ from cc_daemon.sim.ping1d import (
     Ping1DServer,
 )
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.sonar import ping
-from cc_daemon.sonar.ping import PING1D_TABLE
 from tests.test_sonar_ping import (
     MANUAL_DEVICE_ID,
     MANUAL_DISTANCE_SIMPLE,

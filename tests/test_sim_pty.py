@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     Ack,
     DepthReport,
     ErrorKind,

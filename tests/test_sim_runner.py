@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from cc_daemon.config import Settings
-from cc_daemon.service import Daemon
+from cc_daemon.daemon.service import Daemon
 from cc_daemon.sim import mission as mission_module
 from cc_daemon.sim.autopilot import Autopilot
 from cc_daemon.sim.commands import (
@@ -424,7 +424,7 @@ async def test_simulate_autopilot_on_a_serial_port_against_a_daemon(tmp_path: Pa
 
 def _one_cast_run(*, drop_at: float | None = None) -> Run:
     """A run whose autopilot saw S1 cast (deepest R-M 0.75 m, then R-F) and nothing else."""
-    from cc_daemon.protocol import Ack, DepthReport, Finished
+    from cc_daemon.core.protocol import Ack, DepthReport, Finished
     from cc_daemon.sim.autopilot import AutopilotConfig, Phase
 
     mission = make_mission(2, 1)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from cc_daemon.config import Settings
-from cc_daemon.protocol import Ack, DepthReport, Finished
+from cc_daemon.core.protocol import Ack, DepthReport, Finished
 from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig, Phase
 from cc_daemon.sim.commands import add_simulate_arguments, options_from_args
 from cc_daemon.sim.console import SimConsole, summary_lines

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon import datacli
-from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.cli import data as datacli
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
 from cc_daemon.store import Journal
 from cc_daemon.store.snapshot import SnapshotReport, take_snapshot
 

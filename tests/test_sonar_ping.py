@@ -7,10 +7,10 @@ from brping import PingParser, definitions
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cc_daemon.errors import FieldError
-from cc_daemon.sonar import ping
-from cc_daemon.sonar.client import SonarClient, start_requests, stop_request
-from cc_daemon.sonar.ping import (
+from cc_daemon.core.errors import FieldError
+from cc_daemon.drivers.sonar import ping
+from cc_daemon.drivers.sonar.client import SonarClient, start_requests, stop_request
+from cc_daemon.drivers.sonar.ping import (
     PING1D_TABLE,
     BadFrame,
     DistanceSimple,

@@ -10,17 +10,17 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
+from cc_daemon.drivers.sonar import ping
+from cc_daemon.drivers.sonar.client import SonarReading
+from cc_daemon.drivers.sonar.ping import DistanceSimple, PingStream
+from cc_daemon.drivers.sonar.reader import SonarReader
 from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig
 from cc_daemon.sim.mission import SonarReading as MissionReading
 from cc_daemon.sim.mission import make_mission
 from cc_daemon.sim.ping1d import Echo, FieldSounder, Ping1DDevice, Ping1DServer
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.sonar_chain import attach_sonar
-from cc_daemon.sonar import ping
-from cc_daemon.sonar.client import SonarReading
-from cc_daemon.sonar.ping import DistanceSimple, PingStream
-from cc_daemon.sonar.reader import SonarReader
 from tests.test_sim_ping1d import ScriptedSounder
 
 

@@ -6,16 +6,16 @@ import random
 
 import pytest
 
-from cc_daemon.cast.machine import CastMachine, Outcome, SendFinished
-from cc_daemon.cast.plan import Phase
-from cc_daemon.sim.water import SondeModel, WaterColumn
-from cc_daemon.sonde.depthcheck import (
+from cc_daemon.core.cast.machine import CastMachine, Outcome, SendFinished
+from cc_daemon.core.cast.plan import Phase
+from cc_daemon.core.winch.physics import LinePhysics
+from cc_daemon.drivers.sonde.depthcheck import (
     BottomContact,
     DepthAgreement,
     DepthDisagreement,
     DepthMonitor,
 )
-from cc_daemon.winch.physics import LinePhysics
+from cc_daemon.sim.water import SondeModel, WaterColumn
 from tests.castkit import Run, execute, plan_for, settings, station
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.sonde.reader import OK, SondeReader
-from cc_daemon.sonde.settings import SondeSettings
+from cc_daemon.config.sonde import SondeSettings
+from cc_daemon.drivers.sonde.reader import OK, SondeReader
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -44,6 +44,6 @@ async def test_simulate_sonde_serves_the_default_map(tmp_path: Path) -> None:
 
 
 def test_bad_fault_rate_is_usage_error(tmp_path: Path) -> None:
-    from cc_daemon.cli import main
+    from cc_daemon.cli.app import main
 
     assert main(["simulate-sonde", "--port", str(tmp_path / "t"), "--fault-rate", "2"]) == 2

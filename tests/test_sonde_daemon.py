@@ -17,8 +17,8 @@ from typing import Any
 import pytest
 
 from cc_daemon.config import Settings
-from cc_daemon.protocol import Ack, DepthReport, Finished
-from cc_daemon.service import EXIT_OK, Daemon
+from cc_daemon.core.protocol import Ack, DepthReport, Finished
+from cc_daemon.daemon.service import EXIT_OK, Daemon
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.sonde import SimulatedSonde

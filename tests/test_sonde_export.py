@@ -11,9 +11,9 @@ from pathlib import Path
 import netCDF4
 import pytest
 
-from cc_daemon.cli import main
-from cc_daemon.protocol import StartMeasuring
-from cc_daemon.sonde.settings import DEFAULT_PARAMETERS
+from cc_daemon.cli.app import main
+from cc_daemon.config.sonde import DEFAULT_PARAMETERS
+from cc_daemon.core.protocol import StartMeasuring
 from cc_daemon.store import Journal
 from cc_daemon.store.sonde import SondeSampleRecord
 
@@ -149,7 +149,7 @@ def test_survey_map_and_section(db: Path, tmp_path: Path) -> None:
 
 
 def test_value_near_and_distance() -> None:
-    from cc_daemon.sondeplot import along_track_m, value_near
+    from cc_daemon.export.sondeplot import along_track_m, value_near
     from cc_daemon.store.reader import CastRecord
 
     def reading(depth: float | None, value: float | None) -> SondeSampleRecord:

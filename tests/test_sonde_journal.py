@@ -5,7 +5,7 @@ from __future__ import annotations
 import sqlite3
 from pathlib import Path
 
-from cc_daemon.protocol import StartMeasuring
+from cc_daemon.core.protocol import StartMeasuring
 from cc_daemon.store import Journal, JournalReader
 from cc_daemon.store.schema import MIGRATIONS, SCHEMA_VERSION
 from cc_daemon.store.sonde import MIGRATION

@@ -9,9 +9,17 @@ from pathlib import Path
 
 import pytest
 
+from cc_daemon.config.sonde import SondeSettings
+from cc_daemon.drivers.sonde.reader import (
+    CRC,
+    DISCONNECTED,
+    EXCEPTION,
+    OK,
+    PARTIAL,
+    TIMEOUT,
+    SondeReader,
+)
 from cc_daemon.sim.sonde import SimulatedSonde
-from cc_daemon.sonde.reader import CRC, DISCONNECTED, EXCEPTION, OK, PARTIAL, TIMEOUT, SondeReader
-from cc_daemon.sonde.settings import SondeSettings
 
 # Values whose float bit patterns are easy to recognise on the wire.
 KNOWN = {

@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cc_daemon.sonde.registers import Block, decode, encode, plan_blocks
-from cc_daemon.sonde.settings import DEFAULT_PARAMETERS, SondeParameter
+from cc_daemon.config.sonde import DEFAULT_PARAMETERS, SondeParameter
+from cc_daemon.drivers.sonde.registers import Block, decode, encode, plan_blocks
 
 
 def param(name: str, register: int, **kw: str) -> SondeParameter:

@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.cli import main
+from cc_daemon.cli.app import main
 from cc_daemon.config import load_settings
-from cc_daemon.errors import ConfigError
-from cc_daemon.sonde.settings import DEFAULT_PARAMETERS, SondeSettings
+from cc_daemon.config.sonde import DEFAULT_PARAMETERS, SondeSettings
+from cc_daemon.core.errors import ConfigError
 
 PREFIX = "cc-daemon: bad configuration: "
 

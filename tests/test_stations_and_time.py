@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from cc_daemon.cast.stations import StationMemory, distance_m
-from cc_daemon.cast.timestamps import AutopilotTime
+from cc_daemon.core.cast.stations import StationMemory, distance_m
+from cc_daemon.core.cast.timestamps import AutopilotTime
 from tests.castkit import MADRID_LAT_E7, MADRID_LON_E7, station
 
 

@@ -22,8 +22,8 @@ from typing import Any
 
 import pytest
 
-from cc_daemon.protocol import Finished, ProbePosition, ProbePositionRequest, Telemetry
-from cc_daemon.status.client import StatusUnavailable, read_status
+from cc_daemon.cli.status.client import StatusUnavailable, read_status
+from cc_daemon.core.protocol import Finished, ProbePosition, ProbePositionRequest, Telemetry
 from tests.daemonkit import REPO, DaemonProcess, station, toml_text
 
 pytestmark = pytest.mark.slow

@@ -12,14 +12,14 @@ from typing import Any
 
 import pytest
 
-from cc_daemon.cli import main
+from cc_daemon.cli.app import main
+from cc_daemon.cli.status.client import StatusUnavailable, read_status
+from cc_daemon.cli.status.view import render_text, watch
 from cc_daemon.config import Settings
-from cc_daemon.protocol import Telemetry
-from cc_daemon.service import Daemon
+from cc_daemon.core.protocol import Telemetry
+from cc_daemon.daemon.service import Daemon
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.status.client import StatusUnavailable, read_status
-from cc_daemon.status.view import render_text, watch
 from tests.daemonkit import FAST_CAST, merge, station
 
 

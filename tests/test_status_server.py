@@ -12,10 +12,10 @@ from typing import Any
 
 import pytest
 
-from cc_daemon.status.client import read_status
-from cc_daemon.status.clocksync import STA_UNSYNC, TIME_ERROR, clock_sync, from_adjtimex
-from cc_daemon.status.server import SocketBusy, StatusServer
-from cc_daemon.status.view import render_text
+from cc_daemon.cli.status.client import read_status
+from cc_daemon.cli.status.view import render_text
+from cc_daemon.daemon.status_server import SocketBusy, StatusServer
+from cc_daemon.ground.clocksync import STA_UNSYNC, TIME_ERROR, clock_sync, from_adjtimex
 
 
 async def max_loop_gap(seconds: float) -> float:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.protocol import Telemetry
+from cc_daemon.core.protocol import Telemetry
 from cc_daemon.store import Journal
 from cc_daemon.store.synthetic import FakeClock
 from cc_daemon.store.thinning import FixThinner, buffer_rows

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from cc_daemon.cast.timestamps import TimestampOrder, swap_bytes
+from cc_daemon.core.cast.timestamps import TimestampOrder, swap_bytes
 
 
 def wire(value: int, order: str) -> int:

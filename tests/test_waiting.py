@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.link import SerialLink
-from cc_daemon.logsetup import configure_logging
+from cc_daemon.drivers.link import SerialLink
+from cc_daemon.ground.logsetup import configure_logging
+from cc_daemon.ground.waiting import WaitReport
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.waiting import WaitReport
 
 
 def test_reports_come_at_a_slowing_interval_with_a_count() -> None:
@@ -93,11 +93,11 @@ async def test_a_link_waiting_for_a_missing_device_keeps_saying_so(tmp_path: Pat
 async def test_the_daemon_counts_the_wait_and_says_it_in_the_systemd_status(
     tmp_path: Path,
 ) -> None:
+    from cc_daemon.cli.status.view import render_text
     from cc_daemon.config import Settings
-    from cc_daemon.service import Daemon
-    from cc_daemon.status.report import source_of, status_document
-    from cc_daemon.status.view import render_text
-    from cc_daemon.systemd import SystemdNotifier
+    from cc_daemon.daemon.service import Daemon
+    from cc_daemon.daemon.status_report import status_document
+    from cc_daemon.daemon.systemd import SystemdNotifier
 
     sock_path = tmp_path / "notify.sock"
     with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as server:
@@ -120,7 +120,7 @@ async def test_the_daemon_counts_the_wait_and_says_it_in_the_systemd_status(
             await asyncio.sleep(1.2)
             assert daemon.snapshot().port_open_attempts >= 10
             # ... and the status document (`cc-daemon status`) says so.
-            doc = status_document(source_of(daemon, time.monotonic(), time.time(), 0.0))
+            doc = status_document(daemon.status_inputs())
             assert doc["link"]["up"] is False and doc["link"]["open_attempts"] >= 10
             assert f"{doc['link']['open_attempts']} attempts to open it" in render_text(doc)
             statuses = []

@@ -10,7 +10,6 @@ is given, and either returns a frozen `Settings` or raises `ConfigError`.
 from __future__ import annotations
 
 import difflib
-import json
 import os
 import re
 import tomllib
@@ -22,9 +21,10 @@ from pydantic import BaseModel, ValidationError
 from pydantic_core import ErrorDetails
 from pydantic_settings import TomlConfigSettingsSource
 
+from cc_daemon.config import naming
 from cc_daemon.config.rules import _Key, _Leaf, _Origin
 from cc_daemon.config.schema import Settings
-from cc_daemon.errors import ConfigError
+from cc_daemon.core.errors import ConfigError
 
 ENV_PREFIX = "CC_DAEMON_"
 ENV_NESTED_DELIMITER = "__"
@@ -182,8 +182,6 @@ def _merge(layers: Sequence[Sequence[_Leaf]]) -> tuple[dict[str, Any], dict[_Key
 
 # --- error messages ---------------------------------------------------------------------
 
-_MISSING = object()
-
 
 def _describe(
     error: ErrorDetails, merged: Mapping[str, Any], origins: Mapping[_Key, _Origin]
@@ -202,68 +200,19 @@ def _describe(
     return f"{_key_value_source(loc, merged, origins)}: {_requirement(error, loc)}"
 
 
-def _dotted(key: _Key) -> str:
-    return ".".join(key) if key else "(top level)"
-
-
-def _key_value_source(key: _Key, merged: Mapping[str, Any], origins: Mapping[_Key, _Origin]) -> str:
-    value = _lookup(merged, key)
-    if value is _MISSING:
-        return f"{_dotted(key)} = {_render(_default(key))} (default)"
-    origin = origins.get(key)
-    if origin is not None and origin.kind == "env" and isinstance(value, str) and value.strip():
-        # Exactly as typed: every environment value is text, quoting it would mislead.
-        shown = value
-    else:
-        shown = _render(value)
-    return f"{_dotted(key)} = {shown} ({_source(key, origins)})"
-
-
-def _source(key: _Key, origins: Mapping[_Key, _Origin]) -> str:
-    for length in range(len(key), 0, -1):
-        origin = origins.get(key[:length])
-        if origin is not None:
-            return f"from {origin.name}"
-    # A section such as [winch.bogus] has no value of its own: name one of its keys' source.
-    for k, origin in origins.items():
-        if k[: len(key)] == key:
-            return f"from {origin.name}"
-    return "default"
-
-
-def _lookup(data: Any, key: _Key) -> Any:
-    for part in key:
-        if isinstance(data, list | tuple) and part.isdigit() and int(part) < len(data):
-            data = data[int(part)]  # an array of tables: [[sonde.parameters]]
-            continue
-        if not isinstance(data, Mapping) or part not in data:
-            return _MISSING
-        data = data[part]
-    return data
+_dotted = naming.dotted
+_source = naming.source
+_lookup = naming.lookup
+_render = naming.render
+_MISSING = naming.MISSING
 
 
 def _default(key: _Key) -> Any:
-    node: Any = Settings()
-    for part in key:
-        node = getattr(node, part, None)
-    return node
+    return naming.default_at(Settings(), key)
 
 
-def _render(value: Any) -> str:
-    """A value as it would be written in the TOML file."""
-    if value is None:
-        return "none"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str | Path):
-        return json.dumps(str(value))
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, Mapping):
-        return "{" + ", ".join(f"{k} = {_render(v)}" for k, v in value.items()) + "}"
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_render(v) for v in value) + "]"
-    return repr(value)
+def _key_value_source(key: _Key, merged: Mapping[str, Any], origins: Mapping[_Key, _Origin]) -> str:
+    return naming.key_value_source(key, merged, origins, Settings())
 
 
 def _model_at(key: _Key) -> type[BaseModel] | None:

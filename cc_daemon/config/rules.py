@@ -2,7 +2,7 @@
 the error kinds that `loading` turns into one plain line per problem.
 
 Shared by every section's model (`schema`, and the sections that live beside the
-code they configure, such as `cc_daemon.sonde.settings`). Pure: no I/O.
+code they configure, such as `cc_daemon.config.sonde`). Pure: no I/O.
 """
 
 from __future__ import annotations

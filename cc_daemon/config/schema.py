@@ -20,6 +20,7 @@ from pydantic import (
 )
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
+from cc_daemon.config import naming
 from cc_daemon.config.rules import (
     _HOUR_S,
     _SECTION,
@@ -36,7 +37,7 @@ from cc_daemon.config.rules import (
     _Positive,
     _upper,
 )
-from cc_daemon.sonde.settings import SondeSettings
+from cc_daemon.config.sonde import SondeSettings
 
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
 # docs/configuration.md; tests keep both in step with these models.
@@ -259,7 +260,7 @@ class StoreSettings(BaseModel):
 
     # None lets the journal choose its default location. Where the file may be
     # (not a directory, a device, /proc...) is checked at start, not here: that
-    # needs the filesystem (see cc_daemon/preflight.py).
+    # needs the filesystem (see cc_daemon/daemon/preflight.py).
     path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
     # Telemetry fixes written to the journal per second at most: the latest of
     # each interval is kept, the rest counted. Bounds the disk a babbling
@@ -345,16 +346,14 @@ class Settings(BaseSettings):
 
     def describe(self, dotted_key: str) -> str:
         """`key = value (from source)`, as a configuration error names a key."""
-        from cc_daemon.config.loading import _MISSING, _default, _key_value_source, _lookup, _render
-
         key = tuple(dotted_key.split("."))
-        if _lookup(self._merged, key) is _MISSING:
+        if naming.lookup(self._merged, key) is naming.MISSING:
             node: Any = self
             for part in key:
                 node = getattr(node, part)
-            where = "default" if node == _default(key) else "given"
-            return f"{dotted_key} = {_render(node)} ({where})"
-        return _key_value_source(key, self._merged, self._origins)
+            where = "default" if node == naming.default_at(type(self)(), key) else "given"
+            return f"{dotted_key} = {naming.render(node)} ({where})"
+        return naming.key_value_source(key, self._merged, self._origins, type(self)())
 
     @classmethod
     def settings_customise_sources(

@@ -13,7 +13,7 @@ runnable as printed.
 import shlex
 import sys
 
-from cc_daemon.errors import CcDaemonError
+from cc_daemon.core.errors import CcDaemonError
 
 # What each extra installs (as pyproject.toml's [project.optional-dependencies] says).
 REQUIREMENTS = {"plot": "matplotlib>=3.8", "netcdf": "netCDF4>=1.6"}

@@ -20,7 +20,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, TextIO
 
-from cc_daemon.sonde.settings import DEFAULT_PARAMETERS
+from cc_daemon.config.sonde import DEFAULT_PARAMETERS
 from cc_daemon.store.reader import CastRecord, EventRecord, iso_utc
 from cc_daemon.store.sonde import SondeSampleRecord
 

@@ -14,6 +14,6 @@
 - `runner`: wires them to the daemon, in-process; `commands`: the command line.
 
 The simulator speaks to the daemon only through the wire protocol (the codec
-in `cc_daemon.protocol`); it never reaches into the daemon's internals except
+in `cc_daemon.core.protocol`); it never reaches into the daemon's internals except
 to read its status snapshot for the summary.
 """

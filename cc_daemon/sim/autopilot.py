@@ -47,7 +47,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal
 
-from cc_daemon.protocol import (
+from cc_daemon.core.protocol import (
     Ack,
     AutopilotMessage,
     CorruptFrame,

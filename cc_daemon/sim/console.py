@@ -31,7 +31,7 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
-from cc_daemon.protocol import CorruptFrame, Message, as_dict
+from cc_daemon.core.protocol import CorruptFrame, Message, as_dict
 from cc_daemon.sim.autopilot import Violation
 from cc_daemon.sim.mission import Mission
 from cc_daemon.sim.nextsteps import next_steps

@@ -20,7 +20,7 @@ import random
 import time
 from collections.abc import Callable
 
-from cc_daemon.protocol.frames import MAX_FRAME_LENGTH
+from cc_daemon.core.protocol.frames import MAX_FRAME_LENGTH
 
 
 class BitFlipper:

@@ -30,15 +30,15 @@ from typing import Any
 
 import serial_asyncio
 
-from cc_daemon.sim.mission import Mission, Point
-from cc_daemon.sonar import ping
-from cc_daemon.sonar.ping import (
+from cc_daemon.drivers.sonar import ping
+from cc_daemon.drivers.sonar.ping import (
     ContinuousStart,
     ContinuousStop,
     GeneralRequest,
     OtherMessage,
     PingStream,
 )
+from cc_daemon.sim.mission import Mission, Point
 
 STREAM_INTERVAL_S = 0.25  # the manual: distance_simple every 250 ms
 SPEED_OF_SOUND_MM_S = 1_500_000  # fresh water, as a Ping1D ships

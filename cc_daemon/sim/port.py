@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 
 import serial_asyncio
 
-from cc_daemon.protocol import CorruptFrame, Message, Parser, Sender, encode
+from cc_daemon.core.protocol import CorruptFrame, Message, Parser, Sender, encode
 
 ByteFilter = Callable[[bytes], bytes]
 

@@ -3,7 +3,7 @@
 This module wires the simulator's pieces together for one run:
 
 - `--simulate` (`run_simulation`): a pty pair in a temporary directory, the real
-  daemon (`cc_daemon.service.Daemon`) in this process on the pty's slave
+  daemon (`cc_daemon.daemon.service.Daemon`) in this process on the pty's slave
   symlink, the simulated autopilot on the master, the console, and at the end a
   summary read from what the autopilot saw, the daemon's status and its journal.
 - `simulate-autopilot` (`run_autopilot`): the simulated autopilot alone on a
@@ -50,7 +50,7 @@ from cc_daemon.sim.summary import EXIT_FAILED, JournalCast, build_summary, journ
 
 if TYPE_CHECKING:
     from cc_daemon.config import Settings
-    from cc_daemon.service import Daemon
+    from cc_daemon.daemon.service import Daemon
 
 READY_TIMEOUT_S = 10.0
 LINGER_S = 1.0  # after the last station, listen for stray frames this long
@@ -111,8 +111,9 @@ def _signals(run: Run, enabled: bool) -> Iterator[None]:
 
 async def run_simulation(options: SimOptions) -> int:
     """A whole survey: the daemon in this process against the simulated autopilot."""
-    from cc_daemon.logsetup import configure_logging, reset_logging
-    from cc_daemon.service import Daemon
+    from cc_daemon.daemon.service import Daemon
+    from cc_daemon.ground.logsetup import configure_logging, reset_logging
+    from cc_daemon.sim.devices import SIMULATORS
     from cc_daemon.store import StoreError
 
     mission = make_mission(options.stations, options.seed)
@@ -131,7 +132,7 @@ async def run_simulation(options: SimOptions) -> int:
     ):
         settings = daemon_settings(options, pair.path)
         autopilot = Autopilot(mission, autopilot_config(options, settings))
-        daemon = Daemon(settings, simulation=True)
+        daemon = Daemon(settings, simulation=True, simulators=SIMULATORS)
         run = Run(
             mission,
             autopilot,

@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from cc_daemon.protocol import Message
+from cc_daemon.core.protocol import Message
 from cc_daemon.sim.autopilot import Autopilot, Phase, StationLog
 from cc_daemon.sim.console import MARKS, SimConsole, ViewState
 from cc_daemon.sim.logtap import LogTap
@@ -24,7 +24,8 @@ from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
 
 if TYPE_CHECKING:
-    from cc_daemon.service import Daemon, DaemonStatus
+    from cc_daemon.core.status import DaemonStatus
+    from cc_daemon.daemon.service import Daemon
 
 PROGRESS_EVERY_S = 30.0  # a transit line this often while cruising, so a long leg is not silent
 

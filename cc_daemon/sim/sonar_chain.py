@@ -19,11 +19,11 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+from cc_daemon.drivers.sonar.reader import SonarReader
 from cc_daemon.sim.autopilot import Autopilot, Phase
 from cc_daemon.sim.mission import Point, SonarReading
 from cc_daemon.sim.ping1d import FieldSounder, Ping1DDevice, Ping1DServer
 from cc_daemon.sim.pty import PtyPair
-from cc_daemon.sonar.reader import SonarReader
 
 OPEN_TIMEOUT_S = 5.0
 # Three readings of the 250 ms stream: the M frame then carries what the sonar

@@ -37,10 +37,10 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
+from cc_daemon.config.sonde import DEFAULT_PARAMETERS, SondeParameter
+from cc_daemon.drivers.sonde.registers import encode, plan_blocks
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.water import SondeModel
-from cc_daemon.sonde.registers import encode, plan_blocks
-from cc_daemon.sonde.settings import DEFAULT_PARAMETERS, SondeParameter
 
 _log = structlog.get_logger("cc_daemon.sim.sonde")
 

@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import Any
 
 from cc_daemon import __version__
-from cc_daemon.protocol import StartMeasuring, Telemetry
-from cc_daemon.status.clocksync import clock_sync
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
+from cc_daemon.ground.clocksync import clock_sync
 from cc_daemon.store import sonde
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import sqlite3
 
-from cc_daemon.errors import CcDaemonError
+from cc_daemon.core.errors import CcDaemonError
 from cc_daemon.store import sonde
 
 # "ccdj" in ASCII: lets us refuse to migrate some other program's SQLite file.

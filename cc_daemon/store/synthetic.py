@@ -19,7 +19,7 @@ import math
 import time
 from dataclasses import dataclass
 
-from cc_daemon.protocol import StartMeasuring, Telemetry
+from cc_daemon.core.protocol import StartMeasuring, Telemetry
 from cc_daemon.store.journal import Journal
 
 METRES_PER_DEG_LAT = 111_320.0

@@ -1,0 +1,83 @@
+"""Which sonar bottom a cast is planned on: the freshest confident one of the sources.
+
+Pure. The autopilot's `M` frame carries its sonar's reading; a boat with a
+Ping1D wired to the companion computer has a second one (`[sonar]`). This
+module picks, among readings at or above the confidence the planner trusts
+and no older than `max_age_s`, the one that arrived last, and hands the
+planner a start-measuring frame carrying it. With none usable, the frame goes
+to the planner as it came (and the planner ignores a bottom it cannot trust).
+
+The `M` frame's reading counts as arriving with the frame: the autopilot does
+not say how old its own reading was. It never reads a clock or does I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from cc_daemon.core.protocol import StartMeasuring
+
+AUTOPILOT = "autopilot"
+ONBOARD = "onboard"
+
+
+@dataclass(frozen=True, slots=True)
+class Sounding:
+    """A bottom reading from one source, with when it arrived (the caller's clock)."""
+
+    source: str
+    distance_mm: int
+    confidence_pct: int
+    at: float
+
+
+def freshest_bottom(
+    soundings: Iterable[Sounding], now: float, *, min_confidence: int, max_age_s: float
+) -> Sounding | None:
+    """The latest-arriving confident, fresh sounding; None if there is none.
+
+    On a tie the first given wins (give the autopilot's first: it is the
+    reading the boat's own plan saw).
+    """
+    best: Sounding | None = None
+    for sounding in soundings:
+        if sounding.confidence_pct < min_confidence or not 0 <= now - sounding.at <= max_age_s:
+            continue
+        if best is None or sounding.at > best.at:
+            best = sounding
+    return best
+
+
+def station_for_plan(
+    station: StartMeasuring,
+    arrived_at: float,
+    onboard: Sounding | None,
+    *,
+    min_confidence: int,
+    max_age_s: float,
+) -> tuple[StartMeasuring, str | None]:
+    """`station` with the sonar fields of the bottom to plan on, and that bottom's source.
+
+    The source is None when no reading is usable: the frame is returned unchanged.
+    """
+    from_frame = Sounding(
+        AUTOPILOT, station.sonar_distance_mm, station.sonar_confidence_pct, arrived_at
+    )
+    candidates = [from_frame] if onboard is None else [from_frame, onboard]
+    best = freshest_bottom(
+        candidates, arrived_at, min_confidence=min_confidence, max_age_s=max_age_s
+    )
+    if best is None:
+        return station, None
+    if best.source == AUTOPILOT:
+        return station, AUTOPILOT
+    chosen = StartMeasuring(
+        station.timestamp_s,
+        station.lon_e7,
+        station.lat_e7,
+        station.alt_mm,
+        best.distance_mm,
+        min(best.confidence_pct, 100),
+    )
+    return chosen, best.source

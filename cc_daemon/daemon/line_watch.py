@@ -1,0 +1,165 @@
+"""The deployed firmware's ways, for the daemon: timestamp order, R-F repeats,
+the RC stick's jog and the lost-`M` watch (docs/firmware.md).
+
+This module owns the shell side of four pure machines (`cast.timestamps`,
+`cast.rf_repeat`, `cast.jog`, `cast.lost_start`): it feeds them what the
+daemon hears and the time, and carries out what they decide, through the
+callables the daemon gives it (write a frame, command the winch, journal an
+event, tell systemd). It never decides anything itself, never starts or
+aborts a cast (the daemon does, on a `U` during a cast) and never sends a
+reply to a stick frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import structlog
+
+from cc_daemon.config import Settings
+from cc_daemon.core.cast.jog import (
+    HaltWinch,
+    Jog,
+    JogAction,
+    JogStarted,
+    JogStopped,
+    MoveWinch,
+    Stick,
+)
+from cc_daemon.core.cast.lost_start import LostStartWatch
+from cc_daemon.core.cast.rf_repeat import RfRepeater
+from cc_daemon.core.cast.timestamps import TimestampOrder
+from cc_daemon.core.protocol import Finished, Message, Telemetry, encode
+from cc_daemon.core.winch.status import WinchStatus
+
+_log = structlog.get_logger("cc_daemon.service")
+
+TICK_S = 0.1  # how often the daemon calls `tick`
+
+
+class LineWatch:
+    def __init__(
+        self,
+        settings: Settings,
+        *,
+        write: Callable[[bytes], bool],
+        move_winch: Callable[[float], None],
+        stop_winch: Callable[[str], None],
+        winch_status: Callable[[], WinchStatus],
+        journal_event: Callable[..., None],
+        notify: Callable[[str], None],
+    ) -> None:
+        self.order = TimestampOrder(settings.serial.timestamp_order)
+        self.rf = RfRepeater(settings.cast.rf_repeat_after_s, settings.cast.rf_repeats)
+        self.lost = LostStartWatch()
+        self.jog = Jog(settings.serial.jog_hold_s, settings.winch.max_line_m)
+        self._write = write
+        self._move = move_winch
+        self._stop = stop_winch
+        self._status = winch_status
+        self._event = journal_event
+        self._notify = notify
+        self.rf_repeats_sent = 0
+
+    # ------------------------------------------------------------ what we hear
+
+    def heard(self, message: Message, now: float) -> int:
+        """Any frame from the autopilot: returns its time in its real value."""
+        self.rf.frame_received()  # it speaks again: it read our R-F
+        if isinstance(message, Telemetry):
+            if self.lost.suspected is not None:
+                _log.info("telemetry again: the autopilot was not waiting on a lost M")
+                self._notify("STATUS=telemetry from the autopilot again")
+            self.lost.heard(now)
+            decision = self.order.observe_telemetry(message.timestamp_s, now)
+            if decision is not None:
+                _log.info(
+                    "autopilot timestamp byte order decided",
+                    order=decision.order,
+                    votes=decision.votes,
+                    against=decision.against,
+                    evidence=[f"{a:04X}->{b:04X} in {s} s" for a, b, s in decision.evidence],
+                )
+                self._event("timestamp_order", order=decision.order, votes=decision.votes)
+        return self.order.decode(message.timestamp_s)
+
+    def corrupt(self) -> None:
+        self.lost.corrupt()
+
+    def finished_sent(self, frame: Finished, now: float) -> None:
+        self.rf.sent(frame, now)
+
+    def cast_ended(self, now: float) -> None:
+        self.lost.heard(now)  # the silence of the cast was expected
+
+    # ------------------------------------------------------------ the RC stick
+
+    def stick(self, stick: Stick, now: float) -> None:
+        """A stick frame with no cast running: jog."""
+        self._carry_out(self.jog.frame(stick, now, self._status()), now)
+
+    def stop_jog(self, now: float, reason: str) -> None:
+        if self.jog.active:  # no winch to ask before the daemon has made one
+            self._carry_out(self.jog.cancel(now, self._status(), reason), now)
+
+    def _carry_out(self, actions: list[JogAction], now: float) -> None:
+        for action in actions:
+            match action:
+                case MoveWinch(depth_m=depth):
+                    try:
+                        self._move(depth)
+                    except Exception as exc:
+                        _log.error(
+                            "jog: winch command failed", error=f"{type(exc).__name__}: {exc}"
+                        )
+                        self._carry_out(self.jog.cancel(now, self._status(), f"winch: {exc}"), now)
+                case HaltWinch(reason=reason):
+                    self._stop(reason)
+                case JogStarted(stick=stick, depth_m=depth):
+                    _log.info("jog started (RC stick)", stick=str(stick), depth_m=round(depth, 3))
+                    self._event("jog_started", stick=str(stick), depth_m=round(depth, 3))
+                case JogStopped():
+                    detail = {
+                        "stick": str(action.stick),
+                        "reason": action.reason,
+                        "from_depth_m": round(action.from_depth_m, 3),
+                        "depth_m": round(action.depth_m, 3),
+                        "duration_s": action.duration_s,
+                    }
+                    _log.info("jog stopped (RC stick)", **detail)
+                    self._event("jog_stopped", **detail)
+
+    # ------------------------------------------------------------ each tick
+
+    def tick(self, now: float, *, cast_running: bool) -> None:
+        if self.jog.active:
+            self._carry_out(self.jog.step(now, self._status()), now)
+        again = self.rf.due(now)
+        if again is not None:
+            sent = self._write(encode(again))
+            self.rf_repeats_sent += 1
+            _log.warning("autopilot silent after R-F: R-F sent again", repeat=self.rf.sent_again)
+            self._event("rf_repeated", repeat=self.rf.sent_again, sent=sent)
+        lost = self.lost.check(now, cast_running=cast_running)
+        if lost is not None:
+            _log.error(
+                "telemetry stopped after corrupt frames: the autopilot may be waiting "
+                "for an answer to a start-measuring frame we could not read",
+                silent_for_s=lost.silent_for_s,
+                corrupt_frames=lost.corrupt_frames,
+            )
+            self._event(
+                "start_measuring_lost",
+                silent_for_s=lost.silent_for_s,
+                corrupt_frames=lost.corrupt_frames,
+            )
+            self._notify(f"STATUS={self.lost_start_text()}")
+
+    def lost_start_text(self) -> str | None:
+        lost = self.lost.suspected
+        if lost is None:
+            return None
+        return (
+            f"autopilot silent after {lost.corrupt_frames} corrupt frame(s): "
+            "a start-measuring frame may have been lost"
+        )

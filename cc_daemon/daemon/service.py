@@ -1,0 +1,560 @@
+"""The daemon: the hub that routes autopilot messages and owns the lifecycle.
+
+It answers the autopilot from the link's read callback (so a reply goes out
+in the same loop iteration that read the request), remembers the latest fix,
+decides per `M` frame whether to start, repeat or refuse a cast, and starts the
+cast's pure state machine (`cast.machine`) against the winch in one task; how
+a cast's actions are carried out is its base class's (`casting.CastRunner`).
+The firmware's ways (stick jog, R-F repeats, lost M) are fed to `line_watch`,
+the sensors run as their own duties (`sonde`, `sonar`), and the status socket
+(`status`) reads `snapshot()`.
+
+Guarantees:
+- A handler's exception is logged and never stops the read loop.
+- The cast does not depend on the link: with the port gone, the cast goes on
+  and keeps recording; depth reports produced meanwhile are not queued.
+- R-F is sent only when the winch says the probe is home (checked by the
+  machine and again here, just before writing).
+- Leaving `run()` in any way leaves the winch motor stopped.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Callable
+from typing import TYPE_CHECKING, Any
+
+import structlog
+
+from cc_daemon.config import Settings
+from cc_daemon.core.cast.jog import Stick
+from cc_daemon.core.cast.machine import (
+    CastMachine,
+    Outcome,
+)
+from cc_daemon.core.cast.plan import SkipCast, plan_cast
+from cc_daemon.core.cast.stations import StationMemory
+from cc_daemon.core.cast.timestamps import AutopilotTime
+from cc_daemon.core.protocol import (
+    Ack,
+    CorruptFrame,
+    Finished,
+    Message,
+    Parser,
+    ProbeDown,
+    ProbePosition,
+    ProbePositionRequest,
+    ProbeUp,
+    Sender,
+    StartMeasuring,
+    Telemetry,
+    as_dict,
+)
+from cc_daemon.core.status import DaemonStatus, Fix
+from cc_daemon.core.winch.status import Winch, WinchStatus
+from cc_daemon.daemon.casting import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, ActiveCast, CastRunner
+from cc_daemon.daemon.line_watch import TICK_S, LineWatch
+from cc_daemon.daemon.preflight import make_journal
+from cc_daemon.daemon.simgate import simulation_warning
+from cc_daemon.daemon.simulators import NO_SIMULATORS, Simulators
+from cc_daemon.daemon.sonde import SondeDuty, make_sonde
+from cc_daemon.daemon.systemd import SystemdNotifier
+from cc_daemon.drivers.link import SerialLink
+from cc_daemon.drivers.winch.factory import make_winch, prepare_winch
+from cc_daemon.ground.clock import Clock, SystemClock
+from cc_daemon.ground.logsetup import flush_rate_limited, output_loss
+from cc_daemon.store import Journal
+
+if TYPE_CHECKING:
+    from cc_daemon.daemon.sonar import OnboardSonar
+    from cc_daemon.daemon.status_report import StatusInputs
+
+_log = structlog.get_logger("cc_daemon.service")
+
+HOUSEKEEPING_TICK_S = 1.0
+SHUTDOWN_EXTEND_S = 30.0  # each EXTEND_TIMEOUT_USEC asks systemd for this much more
+CORRUPT_SUMMARY_EVERY = 10  # ticks
+
+
+class Daemon(CastRunner):
+    def __init__(
+        self,
+        settings: Settings,
+        *,
+        clock: Clock | None = None,
+        winch: Winch | None = None,
+        journal: Journal | None = None,
+        notifier: SystemdNotifier | None = None,
+        simulation: bool = False,
+        simulators: Simulators = NO_SIMULATORS,
+    ) -> None:
+        """`simulation`: run by `--simulate` (a simulated winch is expected, not announced).
+        `simulators`: what stands behind a backend set to a simulated device."""
+        self.settings = settings
+        self._simulators = simulators
+        self._clock = clock or SystemClock()
+        self._winch = winch
+        self._journal = journal
+        self._notifier = notifier or SystemdNotifier.from_environment()
+        self._simulated_note = None if simulation else simulation_warning(settings)
+        if self._simulated_note:
+            self._notifier.status_prefix = self._simulated_note + " | "
+        self.ready = asyncio.Event()
+        self._shutdown = asyncio.Event()
+        self._shutting_down = False
+        self._exit_code = EXIT_OK
+        self._started_at = self._clock.monotonic()
+        self._time = AutopilotTime(self._started_at)
+        self._stations = StationMemory(settings.cast.rearm_s, settings.cast.rearm_distance_m)
+        self._line = LineWatch(
+            settings,
+            write=self._write_again,
+            move_winch=lambda depth: self._winch.move_to(depth) if self._winch else None,
+            stop_winch=self._stop_motor,
+            winch_status=self._winch_status,
+            journal_event=self._journal_event,
+            notify=self._notifier.notify,
+        )
+        self._parser = Parser(
+            Sender.AUTOPILOT,
+            accept_g_alias=settings.serial.accept_g_alias,
+        )
+        serial_settings = settings.serial
+        self.link = SerialLink(
+            serial_settings.port,
+            on_data=self._on_data,
+            on_state=self._on_link_state,
+            baudrate=serial_settings.baudrate,
+            bytesize=serial_settings.bytesize,
+            parity=serial_settings.parity,
+            stopbits=serial_settings.stopbits,
+            reconnect_initial_s=serial_settings.reconnect_initial_s,
+            reconnect_max_s=serial_settings.reconnect_max_s,
+            on_waiting=lambda text: self._notifier.notify(f"STATUS={text}"),
+        )
+        self.sonar: OnboardSonar | None = None
+        if settings.sonar.port is not None:  # brping is loaded only where a Ping is wired
+            from cc_daemon.daemon.sonar import OnboardSonar
+
+            self.sonar = OnboardSonar(settings.sonar, self._clock, lambda: self._journal)
+        self._cast: ActiveCast | None = None
+        self._tasks: asyncio.TaskGroup | None = None
+        self.last_fix: Fix | None = None
+        self.frames_in = 0
+        self.frames_out = 0
+        self.casts_completed = 0
+        self.casts_aborted = 0
+        self.casts_skipped = 0
+        self.port_losses = 0
+        self._corrupt_reported = 0
+        self._last_depth_m = 0.0
+        self._output_loss_reported = False
+        self._sonde: SondeDuty | None = None
+
+    # ------------------------------------------------------------ lifecycle
+
+    async def run(self) -> int:
+        """Serve until shut down; return the process exit status."""
+        if self._simulated_note:
+            _log.critical(self._simulated_note + ": running outside --simulate as configured")
+        if self._winch is None:
+            self._winch = make_winch(
+                self.settings,
+                self._clock,
+                record=self._journal_event,
+                mock_drum=self._simulators.drum,
+            )
+        if self._journal is None:
+            self._journal = make_journal(self.settings)
+            for cast_id in self._journal.open():
+                _log.warning("cast left unfinished by a previous run", cast_id=cast_id)
+        self._journal.record_event("daemon_started", port=self.settings.serial.port)
+        self._sonde = make_sonde(
+            self.settings, clock=self._clock, journal=self._journal, view=self.snapshot,
+            on_bottom_contact=self.bottom_contact, simulator=self._simulators.sonde,
+        )  # fmt: skip
+        _log.info(
+            "cc-daemon started",
+            port=self.settings.serial.port,
+            baudrate=self.settings.serial.baudrate,
+            winch=self.settings.winch.backend,
+            store=str(self._journal.path),
+        )
+        try:
+            # A probe left down (a crash, a power cut) comes home before READY.
+            await prepare_winch(
+                self._winch, lambda: self._notifier.notify("STATUS=homing the winch")
+            )
+            async with asyncio.TaskGroup() as tasks:
+                self._tasks = tasks
+                link_task = tasks.create_task(
+                    self._keep_running("serial-link", self.link.run), name="serial-link"
+                )
+                housekeeping = tasks.create_task(
+                    self._keep_running("housekeeping", self._housekeeping), name="housekeeping"
+                )
+                status = tasks.create_task(
+                    self._keep_running("status", self._serve_status), name="status"
+                )
+                sonde = self._sonde and tasks.create_task(
+                    self._keep_running("sonde", self._sonde.run), name="sonde"
+                )
+                sonar = self.sonar
+                sonar_task = sonar and tasks.create_task(
+                    self._keep_running("sonar", sonar.run), name="sonar"
+                )
+                watch = tasks.create_task(
+                    self._keep_running("line-watch", self._watch_line), name="line-watch"
+                )
+                # Serving from here on; the port may come later (a late USB adapter).
+                self._notifier.notify("READY=1", f"STATUS=opening {self.link.port}")
+                await self._shutdown.wait()
+                self._notifier.notify("STOPPING=1")
+                await self._finish_running_cast()
+                link_task.cancel()
+                housekeeping.cancel()
+                status.cancel()
+                if sonde:
+                    sonde.cancel()
+                if sonar_task:
+                    sonar_task.cancel()
+                watch.cancel()
+        finally:
+            await self._close()
+        return self._exit_code
+
+    def request_shutdown(self, *, immediate: bool = False) -> None:
+        """Graceful: start no new cast, bring the probe home, send R-F, stop.
+
+        `immediate` (a second Ctrl-C): stop the motor now and exit at once.
+        """
+        if immediate:
+            self._stop_motor("immediate shutdown")
+            cast = self._cast
+            if cast is not None:
+                self._exit_code = EXIT_PROBE_MAY_BE_DOWN
+                _log.critical(
+                    "immediate shutdown: winch stopped, the probe may be down",
+                    depth_m=round(self._probe_depth(), 3),
+                    cast_id=cast.cast_id,
+                )
+                if cast.task is not None:
+                    cast.task.cancel()
+        elif not self._shutting_down:
+            _log.info("shutting down: no new casts", cast_running=self._cast is not None)
+        self._line.stop_jog(self._clock.monotonic(), "shutdown")
+        self._shutting_down = True
+        self._shutdown.set()
+
+    @property
+    def shutting_down(self) -> bool:
+        return self._shutting_down
+
+    def reload(self, settings: Settings, applied: tuple[str, ...] = ()) -> None:
+        """Run with `settings` from now on; only live keys may differ (`cc_daemon.daemon.reload`).
+
+        The next cast plans with them; a running cast keeps what it started with.
+        """
+        self.settings = settings
+        self._stations.rearm_s = settings.cast.rearm_s
+        self._stations.rearm_distance_m = settings.cast.rearm_distance_m
+        with self._journaling("set_telemetry_rate") as journal:
+            if journal is not None:
+                journal.set_telemetry_rate(settings.store.telemetry_rate_hz)
+        if applied:
+            self._journal_event("config_reloaded", applied=list(applied))
+
+    def record_event(self, kind: str, **detail: Any) -> None:
+        """A journal event from outside the hub (a reload refused, say); never raises."""
+        self._journal_event(kind, **detail)
+
+    async def _finish_running_cast(self) -> None:
+        """Bring a running cast home; give up only on a probe that cannot come home."""
+        cast = self._cast
+        if cast is None or cast.task is None:
+            return
+        if self._exit_code == EXIT_OK and not cast.settled.is_set():
+            _log.info("shutdown: bringing the probe home before exiting", cast_id=cast.cast_id)
+            self._execute(cast, cast.machine.abort(self._clock.monotonic(), "shutdown"))
+        settled = asyncio.ensure_future(cast.settled.wait())
+        try:
+            while not (cast.task.done() or settled.done()):
+                # Keep systemd from escalating to SIGKILL while the probe comes up.
+                self._notifier.notify(
+                    f"EXTEND_TIMEOUT_USEC={int(SHUTDOWN_EXTEND_S * 1e6)}",
+                    f"STATUS=stopping: bringing the probe home from {self._probe_depth():.1f} m",
+                )
+                await asyncio.wait(
+                    {cast.task, settled},
+                    timeout=SHUTDOWN_EXTEND_S / 3,
+                    return_when=asyncio.FIRST_COMPLETED,
+                )
+        finally:
+            settled.cancel()
+        if not cast.task.done():
+            # Stranded or failed: waiting longer cannot bring the probe home.
+            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
+            _log.critical(
+                "exiting with the probe NOT home: the winch is stopped; recover it by hand",
+                cast_id=cast.cast_id,
+                depth_m=round(self._probe_depth(), 3),
+            )
+            cast.task.cancel()
+        await asyncio.wait({cast.task})  # a cancellation of run() itself still propagates
+
+    async def _close(self) -> None:
+        """Stop the motor, close the journal; each step guarded so one failing
+        cannot skip the next (the winch first: it is the one that matters)."""
+        winch = self._winch
+        if winch is not None:
+            try:
+                await winch.close()
+            except Exception:
+                _log.critical("could not close the winch backend", exc_info=True)
+        cast = self._cast
+        with self._journaling("close") as journal:
+            if journal is not None:
+                if cast is not None:  # stranded or cut short: the record says so
+                    journal.end_cast(
+                        cast.cast_id,
+                        outcome=str(Outcome.UNFINISHED),
+                        reached_depth_m=cast.machine.reached_depth_m,
+                        reason=f"daemon stopped with the probe at {self._probe_depth():.2f} m",
+                    )
+                journal.record_event("daemon_stopped", exit_code=self._exit_code)
+                journal.close()
+        _log.info("cc-daemon stopped", exit_code=self._exit_code)
+        try:
+            flush_rate_limited(everything=True)
+        except Exception:
+            _log.error("could not flush rate-limited log summaries", exc_info=True)
+        self._notifier.close()
+
+    async def _keep_running(self, name: str, duty: Callable[[], Awaitable[None]]) -> None:
+        """Run a background duty for the daemon's lifetime. A crash is logged and
+        the duty restarted: an exception escaping into the task group would cancel
+        the running cast beside it and leave the probe down."""
+        while True:
+            try:
+                await duty()
+                _log.error("background task ended; restarting it", task=name)
+            except Exception:
+                _log.critical("background task crashed; restarting it", task=name, exc_info=True)
+            await asyncio.sleep(1.0)
+
+    async def _serve_status(self) -> None:
+        from cc_daemon.daemon.status_report import status_document
+        from cc_daemon.daemon.status_server import serve_status
+
+        await serve_status(self.settings.status, lambda: status_document(self.status_inputs()))
+
+    def status_inputs(self) -> StatusInputs:
+        """What the status document is made of, as plain values taken now."""
+        from cc_daemon.daemon.status_report import StatusInputs
+
+        now = self._clock.monotonic()
+        journal = self._journal
+        return StatusInputs(
+            snapshot=self.snapshot(),
+            port=self.link.port,
+            baudrate=self.settings.serial.baudrate,
+            winch_backend=self.settings.winch.backend,
+            journal_health=journal.health if journal is not None else None,
+            monotonic=now,
+            wall=self._clock.wall(),
+            uptime_s=now - self._started_at,
+        )
+
+    async def _housekeeping(self) -> None:
+        """Each second: rate-limited log summaries and the systemd watchdog; every
+        10 s the corrupt-frame count (journal and log)."""
+        tick = 0
+        while True:
+            await asyncio.sleep(HOUSEKEEPING_TICK_S)
+            flush_rate_limited()
+            self._notifier.watchdog()  # every second: fine for any WatchdogSec >= 2
+            self._report_output_loss()
+            tick += 1
+            if tick % CORRUPT_SUMMARY_EVERY:
+                continue
+            corrupt = self._parser.stats.errors
+            if corrupt != self._corrupt_reported:
+                new = corrupt - self._corrupt_reported
+                self._corrupt_reported = corrupt
+                _log.warning("corrupt frames received", new=new, total=corrupt)
+                self._journal_event("corrupt_frames", new=new, total=corrupt)
+
+    async def _watch_line(self) -> None:
+        """The jog's dead-man stop, R-F repeats and the lost-M watch (`line_watch`)."""
+        while True:
+            await self._clock.sleep_until(self._clock.monotonic() + TICK_S)
+            self._line.tick(self._clock.monotonic(), cast_running=self._cast is not None)
+
+    def _report_output_loss(self) -> None:
+        """A log stream gone for good (a closed terminal): say so where it can be seen."""
+        loss = output_loss()
+        if loss is None or self._output_loss_reported:
+            return
+        self._output_loss_reported = True
+        self._journal_event("log_output_lost", error=loss.error)
+        self._notifier.notify(f"STATUS=log output lost ({loss.error}); events go to the journal")
+
+    # ------------------------------------------------------------ status
+
+    def snapshot(self) -> DaemonStatus:
+        cast = self._cast
+        return DaemonStatus(
+            link_up=self.link.up,
+            phase=str(cast.machine.phase) if cast else "idle",
+            probe_depth_m=self._probe_depth(),
+            planned_depth_m=cast.machine.plan.depth_m if cast else None,
+            cast_id=cast.cast_id if cast else None,
+            frames_in=self.frames_in,
+            frames_out=self.frames_out,
+            corrupt_frames=self._parser.stats.errors,
+            casts_completed=self.casts_completed,
+            casts_aborted=self.casts_aborted,
+            casts_skipped=self.casts_skipped,
+            winch_fault=cast.machine.winch_fault if cast else None,
+            port_losses=self.port_losses,
+            last_fix=self.last_fix,
+            winch=self._winch_status() if self._winch is not None else None,
+            stopping=self._shutting_down,
+            jog=str(self._line.jog.stick) if self._line.jog.stick else None,
+            lost_start=self._line.lost_start_text(),
+            port_open_attempts=self.link.waiting.attempts,
+        )
+
+    @property
+    def journal(self) -> Journal | None:
+        return self._journal
+
+    # ------------------------------------------------------------ link side
+
+    def _on_link_state(self, up: bool, reason: str) -> None:
+        if up:
+            kind = "port_regained" if self.port_losses else "port_opened"
+            self._journal_event(kind, port=self.link.port)
+            self.ready.set()
+            self._notifier.notify(f"STATUS=answering on {self.link.port}")
+        else:
+            self.port_losses += 1
+            self._journal_event("port_lost", port=self.link.port, reason=reason)
+            self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
+
+    def _on_data(self, data: bytes) -> None:
+        for message in self._parser.events(data):  # in stream order, errors included
+            if isinstance(message, CorruptFrame):
+                self._line.corrupt()
+                continue
+            self.frames_in += 1
+            try:
+                self._handle(message)
+            except Exception:
+                _log.exception("error handling frame", frame=message.frame)
+
+    # ------------------------------------------------------------ messages
+
+    def _handle(self, message: Message) -> None:
+        now = self._clock.monotonic()
+        _log.debug("frame in", **as_dict(message))
+        self._time.observe(self._line.heard(message, now), now)
+        if isinstance(message, ProbePositionRequest):
+            self._send(ProbePosition(self._time.at(now), self._depth_mm(self._probe_depth())))
+        elif isinstance(message, Telemetry):
+            self._remember_fix(message, now)
+        elif isinstance(message, StartMeasuring):
+            self._remember_fix(message, now)
+            self._line.stop_jog(now, "start-measuring")  # then as ever: home first
+            self._on_start_measuring(message, now)
+        elif isinstance(message, ProbeUp | ProbeDown):
+            self._on_stick(Stick.UP if isinstance(message, ProbeUp) else Stick.DOWN, now)
+        else:  # the parser listens to autopilot frames only
+            _log.warning("unexpected frame from the autopilot side", frame=message.frame)
+
+    def _remember_fix(self, message: Telemetry | StartMeasuring, now: float) -> None:
+        self.last_fix = Fix(message, now, self._clock.wall())
+        with self._journaling("record_fix") as journal:
+            if journal is not None:
+                order = self._line.order
+                journal.record_fix(
+                    message,
+                    ap_time_s=order.decode(message.timestamp_s),
+                    ap_time_order=order.order,
+                )
+
+    def _on_stick(self, stick: Stick, now: float) -> None:
+        """`P-U` / `P-D`: no reply ever. In a cast, U means "probe up now"."""
+        cast = self._cast
+        if cast is None:
+            self._line.stick(stick, now)
+        elif stick is Stick.UP:
+            self._execute(cast, cast.machine.abort(now, "safety pilot: probe up (RC stick)"))
+        else:
+            _log.warning("probe-down stick ignored: a cast is running", cast_id=cast.cast_id)
+
+    def _on_start_measuring(self, station: StartMeasuring, now: float) -> None:
+        if self._cast is not None:
+            self._send(Ack(self._time.at(now)))  # the same station, still running
+            return
+        if self._shutting_down:
+            _log.warning("start-measuring ignored: shutting down", timestamp_s=station.timestamp_s)
+            return
+        self._send(Ack(self._time.at(now)))
+        status = self._winch_status()
+        if not status.at_home:
+            # Down with no cast (a restart mid-cast, a hand-lowered probe): bring
+            # it home first, reporting as a cast does; this station is not measured.
+            reason = f"the probe was {status.depth_m:.2f} m down with no cast running"
+            _log.error("start-measuring: recovering the probe first", reason=reason)
+            machine = CastMachine.recovery(
+                started_at=now,
+                report_period_s=self.settings.cast.report_period_s,
+                home_timeout_s=self.settings.cast.max_duration_s,
+                reason=reason,
+            )
+            self._start_cast(station, machine, now)
+            return
+        done = self._stations.recently_done(station, now)
+        if done is not None:
+            _log.info(
+                "station repeated within the re-arm window: repeating R-F, no new cast",
+                cast_id=done.cast_id,
+                since_s=round(now - done.finished_at, 1),
+                rearm_s=self.settings.cast.rearm_s,
+            )
+            self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
+            return
+        bottom = station
+        if self.sonar is not None:  # the freshest confident bottom of the two sonars
+            bottom = self.sonar.station_for_plan(
+                station, now, self.settings.cast.min_sonar_confidence
+            )
+        plan = plan_cast(bottom, self.settings.cast, self.settings.winch.max_line_m)
+        if isinstance(plan, SkipCast):
+            self._skip_cast(station, plan, now, status)
+        else:
+            machine = CastMachine(
+                plan,
+                started_at=now,
+                report_period_s=self.settings.cast.report_period_s,
+                max_duration_s=self.settings.cast.max_duration_s,
+            )
+            self._start_cast(station, machine, now)
+
+    def _skip_cast(
+        self, station: StartMeasuring, skip: SkipCast, now: float, status: WinchStatus
+    ) -> None:
+        _log.warning("cast skipped: station too shallow", reason=skip.reason)
+        cast_id = self._journal_start(station, skip.planned_depth_m, {"skipped": skip.reason})
+        with self._journaling("end_cast") as journal:
+            if journal is not None and cast_id is not None:
+                journal.end_cast(
+                    cast_id,
+                    outcome=str(Outcome.SKIPPED_SHALLOW),
+                    reached_depth_m=0.0,
+                    reason=skip.reason,
+                )
+        self.casts_skipped += 1
+        self._stations.finished(station, now, cast_id)
+        self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))

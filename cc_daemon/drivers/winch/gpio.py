@@ -1,0 +1,554 @@
+"""The real winch on the Pi's GPIO, behind the `Winch` interface.
+
+It owns one motion at a time: the motor through an H-bridge, the line counted
+from drum pulses (revolutions x circumference is the probe's depth), the home
+limit switch, the optional motor current, and every safety rule of
+docs/gpio-winch.md.
+
+Threads. gpiozero calls the pulse and switch callbacks on its own thread, and
+the loop watchdog runs on another. On those threads the only thing done to
+the motor is *stopping* it (at the target count, at the end of the line, at
+the switch), under the H-bridge's lock; everything else is handed to the event
+loop with `call_soon_threadsafe`. Starting the motor, the ramp, the safety
+checks, logging and journaling happen on the loop only.
+
+It must never leave the motor running: `stop`, `close`, an exception in a
+tick, the loop going quiet (watchdog thread) and interpreter exit (atexit)
+all switch it off.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import atexit
+import contextlib
+import enum
+import math
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import structlog
+
+from cc_daemon.config import WinchGpioSettings
+from cc_daemon.core.errors import WinchFault
+from cc_daemon.core.winch.drum import CurrentSensor, Drum, VoltageDivider
+from cc_daemon.core.winch.safety import Limits, MotionGuard
+from cc_daemon.core.winch.status import WinchStatus
+from cc_daemon.drivers.winch.devices import GpioDevices
+from cc_daemon.drivers.winch.motor import Direction
+from cc_daemon.drivers.winch.watchdog import LoopWatchdog
+from cc_daemon.ground.clock import Clock
+
+_log = structlog.get_logger("cc_daemon.winch.gpio")
+
+TICK_S = 0.05  # safety checks, ramp steps and watchdog feeding while the motor runs
+RAMP_FLOOR = 0.3  # the soft start begins at this fraction of the duty
+APPROACH_FRACTION = 0.5  # within approach_m of the target the duty is halved
+SWITCH_SETTLE_S = 0.1  # a switch that opens by itself must stay open this long to be news
+
+EventSink = Callable[..., None]  # (kind, **detail): the journal's record_event
+
+
+class _Goal(enum.Enum):
+    TARGET = "target"  # stop at a pulse count
+    HOME = "home"  # haul in until the limit switch closes
+
+
+class GpioWinch:
+    def __init__(
+        self,
+        cfg: WinchGpioSettings,
+        devices: GpioDevices,
+        *,
+        max_line_m: float,
+        clock: Clock,
+        record: EventSink | None = None,
+        on_close: Callable[[], None] | None = None,
+    ) -> None:
+        self._cfg = cfg
+        self._on_close = on_close
+        self._dev = devices
+        self._bridge = devices.bridge
+        self._clock = clock
+        self._record_sink = record
+        self._loop = asyncio.get_running_loop()
+        self.drum = Drum(cfg.pulses_per_rev, cfg.drum_diameter_m)
+        self.max_line_m = max_line_m
+        # Rounded down: the last pulse allowed is never past the end of the line.
+        self._max_count = math.floor(max_line_m / self.drum.metres_per_pulse + 1e-9)
+        self._current = CurrentSensor(cfg.adc_vref_v, cfg.current_zero_v, cfg.current_v_per_a)
+        self._divider = VoltageDivider(cfg.adc_vref_v, cfg.divider_r1_ohm, cfg.divider_r2_ohm)
+        self._limits = Limits(cfg.stall_timeout_s, cfg.max_current_a, cfg.overcurrent_s)
+        self._changed = asyncio.Event()
+        # Shared with gpiozero's thread, under _lock.
+        self._lock = threading.Lock()
+        # The drum's position as the index of the mark last passed going out: line
+        # in [count, count + 1) pulses. A mark passed going in leaves the line at
+        # count + 1 pulses, so the line at the last edge depends on its direction.
+        self._count = 0
+        self._last_step = 1
+        self._count_known = True  # False while homing from an unknown position
+        self._goal: _Goal | None = None
+        self._target_count = 0
+        self._last_direction = Direction.PAY_OUT  # a lone pulse with no command: line going out
+        # Loop side only.
+        self._fault: str | None = None
+        self._homed = False
+        self._guard: MotionGuard | None = None
+        self._started_at = 0.0
+        self._duty = 0.0
+        self._tick: asyncio.TimerHandle | None = None
+        self._arrived_count: int | None = None  # where an arrival stop left the count
+        self._told_open_at_zero = False
+        self._closed = False
+        self.overshoots: list[int] = []  # pulses past the target after each arrival
+        self._watchdog = LoopWatchdog(cfg.loop_watchdog_s, self._watchdog_trip)
+        atexit.register(self._emergency_stop)
+        devices.switch.when_activated = self._switch_closed_thread
+        devices.switch.when_deactivated = self._switch_opened_thread
+        if devices.pulses is not None:
+            devices.pulses.when_activated = self._pulse_thread
+        if devices.encoder is not None:
+            devices.encoder.when_rotated_clockwise = self._step_out_thread
+            devices.encoder.when_rotated_counter_clockwise = self._step_in_thread
+        if devices.switch.is_active:
+            self._homed = True
+
+    # ------------------------------------------------------------ the Winch interface
+
+    def status(self) -> WinchStatus:
+        self._changed.clear()
+        return WinchStatus(
+            depth_m=max(0.0, self.line_m),
+            moving=self._bridge.direction is not Direction.STOPPED,
+            at_home=self.at_home,
+            fault=self._fault,
+        )
+
+    def move_to(self, depth_m: float) -> None:
+        if self._closed:
+            raise WinchFault("the GPIO winch is closed")
+        if not self._homed:
+            raise WinchFault(
+                "winch not homed: the limit switch has not closed since start-up; "
+                "haul the probe up by hand or run `cc-daemon winch home`"
+            )
+        self._begin(min(max(depth_m, 0.0), self.max_line_m))
+
+    def stop(self) -> None:
+        self._halt()
+        self._changed.set()
+
+    async def wait_change(self, timeout: float) -> None:
+        if self._changed.is_set() or timeout <= 0:
+            return
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(timeout):
+                await self._changed.wait()
+
+    async def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._halt()
+        finally:
+            self._watchdog.close()
+            atexit.unregister(self._emergency_stop)
+            try:
+                self._dev.close()
+            finally:
+                if self._on_close is not None:
+                    self._on_close()
+
+    # ------------------------------------------------------------ more than a Winch
+
+    @property
+    def at_home(self) -> bool:
+        return bool(self._dev.switch.is_active)
+
+    @property
+    def homed(self) -> bool:
+        return self._homed
+
+    @property
+    def line_m(self) -> float:
+        with self._lock:
+            return self.drum.line_m(self._edge())
+
+    def _edge(self) -> int:
+        """The count at the last edge (under _lock): where the line was when it was seen."""
+        return self._count + (1 if self._last_step < 0 else 0)
+
+    @property
+    def pulse_count(self) -> int:
+        with self._lock:
+            return self._count
+
+    def motor_current_a(self) -> float | None:
+        if self._dev.current is None:
+            return None
+        return self._current.amps(float(self._dev.current.value))
+
+    def supply_v(self) -> float | None:
+        if self._dev.voltage is None:
+            return None
+        return self._divider.volts(float(self._dev.voltage.value))
+
+    async def start_up(self) -> None:
+        """Make sure the probe is home before casts are accepted (READY comes after)."""
+        if self.at_home:
+            self._zero_at_switch()
+            self._homed = True
+            _log.info("winch at home: limit switch closed at start")
+            return
+        if not self._cfg.home_at_start:
+            self._fault = (
+                "not homed: the limit switch was open at start and home_at_start is false; "
+                "casts are refused until the probe is homed (by hand or `cc-daemon winch home`)"
+            )
+            _log.error("winch not homed: casts refused", reason=self._fault)
+            self._record("winch_fault", fault=self._fault)
+            return
+        await self.home(reason="limit switch open at start: the probe may be down")
+
+    async def home(self, *, reason: str = "operator request") -> bool:
+        """Haul in until the limit switch closes; True once home. The count means
+        nothing until then (the probe was moved, or the power cut)."""
+        with self._lock:
+            self._count_known = self.at_home
+        _log.warning("winch homing: hauling in until the limit switch closes", reason=reason)
+        self._record("winch_homing", reason=reason, counted_line_m=round(self.line_m, 3))
+        self._begin(0.0, homing=True)
+        while self._bridge.direction is not Direction.STOPPED:
+            self.status()
+            await self.wait_change(TICK_S * 4)
+        if self.at_home:
+            self._homed = True
+            _log.info("winch homed", took_s=round(self._clock.monotonic() - self._started_at, 2))
+            self._record("winch_homed", reason=reason)
+            return True
+        _log.critical("winch homing failed: the probe is not home", fault=self._fault)
+        return False
+
+    def jog(self, direction: Direction, *, by_m: float | None = None) -> None:
+        """Run the motor by hand (calibration): pay out or haul in until `stop`, or
+        for `by_m` metres by the count.
+
+        The end of the line, the switch and the stall rules still apply; the
+        homing requirement does not (this is how an operator homes it by hand)."""
+        self._halt()
+        self._fault = None
+        if direction is Direction.STOPPED:
+            self._changed.set()
+            return
+        with self._lock:
+            self._goal = _Goal.TARGET
+            if by_m is not None:
+                target = self._edge() + int(direction) * max(1, self.drum.count_at(by_m))
+            else:
+                target = self._max_count if direction is Direction.PAY_OUT else -(1 << 30)
+            self._target_count = min(target, self._max_count)
+        self._start_motor(direction, None, homing=False)
+
+    # ------------------------------------------------------------ starting a motion
+
+    def _begin(self, target_m: float, *, homing: bool = False) -> None:
+        self._halt()
+        self._fault = None
+        self._changed.set()
+        target = self.drum.count_at(target_m)
+        with self._lock:
+            count = self._edge()
+        if target_m == 0.0:
+            if self.at_home:
+                return  # already there: nothing to run
+            with self._lock:
+                self._goal = _Goal.HOME
+            self._start_motor(Direction.HAUL_IN, None, homing=homing)
+            return
+        if target == count:
+            return
+        with self._lock:
+            self._goal = _Goal.TARGET
+            self._target_count = min(target, self._max_count)
+        direction = Direction.PAY_OUT if target > count else Direction.HAUL_IN
+        self._start_motor(direction, None, homing=False)
+
+    def _start_motor(self, direction: Direction, duty: float | None, *, homing: bool) -> None:
+        cfg = self._cfg
+        now = self._clock.monotonic()
+        nominal = cfg.payout_duty if direction is Direction.PAY_OUT else cfg.haulin_duty
+        self._duty = duty or nominal
+        deadline = None
+        if self._goal is _Goal.HOME:
+            # Line out / haul speed + margin; from an unknown position (start-up
+            # homing) the whole line.
+            line = self.max_line_m if homing or not self._homed else max(self.line_m, 0.0)
+            deadline = now + line / cfg.line_speed_m_s + cfg.home_margin_s
+        self._guard = MotionGuard(self._limits, started_at=now, home_deadline=deadline)
+        self._started_at = now
+        self._arrived_count = None
+        self._told_open_at_zero = False
+        with self._lock:
+            self._last_direction = direction
+        first = self._duty if cfg.ramp_s == 0 else self._duty * RAMP_FLOOR
+        self._watchdog.arm()
+        self._bridge.start(direction, first)
+        _log.debug(
+            "winch motor on",
+            direction=direction.name,
+            duty=self._duty,
+            line_m=round(self.line_m, 3),
+            goal=self._goal.value if self._goal else None,
+            target_m=round(self.drum.line_m(self._target_count), 3)
+            if abs(self._target_count) <= self._max_count
+            else None,
+        )
+        self._schedule_tick()
+
+    # ------------------------------------------------------------ stopping
+
+    def _halt(self) -> None:
+        """Motor off now, and the motion over (loop side)."""
+        try:
+            self._bridge.stop()
+        finally:
+            self._watchdog.disarm()
+            if self._tick is not None:
+                self._tick.cancel()
+                self._tick = None
+            with self._lock:
+                self._goal = None
+            self._guard = None
+
+    def _fail(self, fault: str, **detail: Any) -> None:
+        self._halt()
+        self._fault = fault
+        self._changed.set()
+        _log.error("winch fault: motor stopped", fault=fault, line_m=round(self.line_m, 3))
+        self._record("winch_fault", fault=fault, line_m=round(self.line_m, 3), **detail)
+
+    def _emergency_stop(self) -> None:
+        """atexit: whatever state the loop was in, the motor goes off."""
+        with contextlib.suppress(Exception):
+            self._bridge.stop()
+
+    def _watchdog_trip(self, silent_s: float) -> None:
+        # On the watchdog thread: stop first, then tell the loop (when it runs again).
+        was = self._bridge.stop()
+        if was is not Direction.STOPPED:
+            with contextlib.suppress(RuntimeError):  # a closed loop: nothing left to tell
+                self._loop.call_soon_threadsafe(self._watchdog_tripped, silent_s)
+
+    def _watchdog_tripped(self, silent_s: float) -> None:
+        self._fail(
+            f"loop watchdog: the event loop was silent for {silent_s:.2f} s "
+            f"(loop_watchdog_s {self._cfg.loop_watchdog_s:g}); the motor was stopped",
+            silent_s=round(silent_s, 3),
+        )
+
+    # ------------------------------------------------------------ the tick (loop side)
+
+    def _schedule_tick(self) -> None:
+        self._tick = self._loop.call_later(TICK_S, self._on_tick)
+
+    def _on_tick(self) -> None:
+        self._tick = None
+        try:
+            self._check()
+        except Exception as exc:
+            self._fail(f"winch check failed: {type(exc).__name__}: {exc}")
+            _log.critical("winch check failed: motor stopped", exc_info=True)
+
+    def _check(self) -> None:
+        guard = self._guard
+        if guard is None or self._bridge.direction is Direction.STOPPED:
+            return
+        self._watchdog.feed()
+        now = self._clock.monotonic()
+        fault = guard.check(now, self.motor_current_a(), self.line_m)
+        if fault is not None:
+            self._fail(fault, peak_current_a=round(guard.peak_current_a, 3))
+            return
+        self._set_power(now)
+        self._schedule_tick()
+
+    def _set_power(self, now: float) -> None:
+        duty = self._duty
+        ramp = self._cfg.ramp_s
+        if ramp > 0:
+            duty *= min(1.0, RAMP_FLOOR + (1 - RAMP_FLOOR) * (now - self._started_at) / ramp)
+        with self._lock:
+            to_target = self._goal is _Goal.TARGET
+            remaining = abs(self._target_count - self._edge())
+        # The last approach_m, and at least the last pulse: a count cannot see closer.
+        approach = max(1, math.ceil(self._cfg.approach_m / self.drum.metres_per_pulse))
+        if to_target and remaining <= approach:
+            duty = min(duty, self._duty * APPROACH_FRACTION)
+        self._bridge.set_duty(duty)
+
+    # ------------------------------------------------------------ gpiozero's thread
+
+    def _pulse_thread(self) -> None:
+        with self._lock:
+            # Single channel: the direction is the motor's, or the last one it had
+            # (a drum still turning after a stop).
+            running = self._bridge.direction
+            step = int(running) if running is not Direction.STOPPED else int(self._last_direction)
+        self._count_thread(step)
+
+    def _step_out_thread(self) -> None:
+        self._count_thread(1)
+
+    def _step_in_thread(self) -> None:
+        self._count_thread(-1)
+
+    def _count_thread(self, step: int) -> None:
+        stop = None
+        with self._lock:
+            self._count += step
+            self._last_step = step
+            count = self._edge()
+            running = self._bridge.direction
+            if running is Direction.PAY_OUT and count >= self._max_count:
+                stop = "end of line"
+            elif self._goal is _Goal.TARGET and (
+                (running is Direction.PAY_OUT and count >= self._target_count)
+                or (running is Direction.HAUL_IN and count <= self._target_count)
+            ):
+                stop = "arrived"
+            if stop is not None:
+                self._bridge.stop()
+        self._tell_loop(self._pulse_seen, count, stop)
+
+    def _switch_closed_thread(self) -> None:
+        with self._lock:
+            running = self._bridge.direction
+            if running is Direction.PAY_OUT and self._edge() <= 0:
+                # Still within the first pulse of leaving the block: the switch
+                # bouncing open, not a snag.
+                running = Direction.STOPPED
+            elif running is not Direction.STOPPED:
+                self._bridge.stop()
+        self._tell_loop(self._switch_seen, True, running)
+
+    def _switch_opened_thread(self) -> None:
+        self._tell_loop(self._switch_seen, False, self._bridge.direction)
+
+    def _tell_loop(self, callback: Callable[..., None], *args: Any) -> None:
+        with contextlib.suppress(RuntimeError):  # the loop is closed: the motor is already off
+            self._loop.call_soon_threadsafe(callback, *args)
+
+    # ------------------------------------------------------------ handed to the loop
+
+    def _pulse_seen(self, count: int, stop: str | None) -> None:
+        if self._guard is not None:
+            self._guard.pulse(self._clock.monotonic())
+        if stop == "end of line":
+            self._fail(
+                f"end of line: {self.drum.line_m(count):.2f} m out reaches winch.max_line_m "
+                f"{self.max_line_m:g}; the motor was stopped"
+            )
+        elif stop == "arrived":
+            self._arrived(count)
+        elif self._arrived_count is not None and self._bridge.direction is Direction.STOPPED:
+            # A pulse after an arrival stop: the drum coasted on.
+            extra = abs(count - self._arrived_count)
+            self.overshoots[-1] = extra
+            _log.warning(
+                "winch overshoot: the drum turned on after the stop",
+                pulses=extra,
+                overshoot_m=round(extra * self.drum.metres_per_pulse, 3),
+                line_m=round(self.drum.line_m(count), 3),
+            )
+        elif (
+            self._goal is _Goal.HOME
+            and count <= 0
+            and self._count_known
+            and not self.at_home
+            and not self._told_open_at_zero
+        ):
+            self._told_open_at_zero = True
+            _log.warning(
+                "winch count and limit switch disagree: the count says home, the switch is "
+                "open; hauling on until it closes",
+                counted_line_m=round(self.drum.line_m(count), 3),
+                switch="open",
+            )
+        self._changed.set()
+
+    def _arrived(self, count: int) -> None:
+        self._halt()
+        self._arrived_count = count
+        self.overshoots.append(0)
+        _log.debug("winch arrived", line_m=round(self.drum.line_m(count), 3))
+
+    def _switch_seen(self, closed: bool, running: Direction) -> None:
+        if not closed:
+            if running is Direction.STOPPED and self._homed:
+                self._loop.call_later(SWITCH_SETTLE_S, self._opened_while_stopped)
+            self._changed.set()
+            return
+        line = self.line_m
+        self._zero_at_switch()
+        self._homed = True
+        if running is Direction.PAY_OUT:
+            self._fail(
+                f"limit switch closed while paying out at {line:.2f} m counted "
+                "(a snag or a wiring fault); the motor was stopped",
+                counted_line_m=round(line, 3),
+            )
+            return
+        if running is Direction.HAUL_IN:
+            self._halt()
+            _log.info("winch home: limit switch closed", counted_line_m=round(line, 3))
+        self._changed.set()
+
+    def _opened_while_stopped(self) -> None:
+        if self.at_home or self._bridge.direction is not Direction.STOPPED:
+            return  # a bounce, or a motion began
+        # Nobody is paying out, yet the probe left the block: it slipped, or someone
+        # pulled it. The next station brings it home first (a recovery cast).
+        _log.warning(
+            "winch count and limit switch disagree: the switch opened with the motor stopped",
+            counted_line_m=round(self.line_m, 3),
+            switch="open",
+        )
+
+    def _zero_at_switch(self) -> None:
+        with self._lock:
+            count = self._count  # at the switch the line is in [0, 1) pulses: count 0
+            self._count = 0
+            self._last_step = 1
+            known, self._count_known = self._count_known, True
+        line = self.drum.line_m(count)
+        if count == 0:
+            return
+        if not known:
+            _log.info("winch count set at the switch after homing from an unknown position")
+            return
+        if abs(line) > self._cfg.count_tolerance_m:
+            _log.warning(
+                "winch count and limit switch disagree: count zeroed at the switch",
+                counted_line_m=round(line, 3),
+                switch="closed",
+                tolerance_m=self._cfg.count_tolerance_m,
+            )
+        else:
+            _log.info("winch count zeroed at the switch", counted_line_m=round(line, 3))
+        self._record(
+            "winch_count_corrected",
+            counted_line_m=round(line, 3),
+            pulses=count,
+            corrected_to_m=0.0,
+        )
+
+    def _record(self, kind: str, **detail: Any) -> None:
+        if self._record_sink is None:
+            return
+        try:
+            self._record_sink(kind, **detail)
+        except Exception:
+            _log.error("could not journal a winch event", kind=kind, exc_info=True)

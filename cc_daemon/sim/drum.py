@@ -1,0 +1,304 @@
+"""A simulated drum on gpiozero's MockFactory: the GPIO winch without a winch.
+
+It owns a small physical model on its own thread: it reads the mock H-bridge
+pins (direction and PWM duty), turns a drum at `full_speed_m_s x duty`, drives
+the mock pulse pin (or the two quadrature pins) as the drum turns, closes the
+mock limit switch when the line is in, and answers the MCP3008's SPI
+transactions with a motor current and a supply voltage. Faults can be
+injected: a jammed drum, a snag that closes the switch on the way down, a
+switch that never closes, a slow haul, lost pulses.
+
+It is for tests, benchmarks, `--simulate --winch gpio-mock` and demos; it
+never runs on a native pin factory. Because mock pins call their callbacks in
+the thread that changes them, gpiozero's callbacks arrive on this drum's thread
+as they would on gpiozero's own thread on a Pi.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from gpiozero import Device, OutputDevice
+from gpiozero.devices import SharedMixin
+from gpiozero.pins.mock import MockFactory, MockPWMPin, MockSPIDevice, MockSPIInterface
+from gpiozero.pins.spi import SPISoftwareBus
+
+from cc_daemon.config import Settings, WinchGpioSettings
+from cc_daemon.core.winch.drum import CurrentSensor, Drum, VoltageDivider, current_fraction
+
+# The MCP3008 on SPI0 as gpiozero's software SPI sees it on a mock factory.
+_SPI0 = {"clock_pin": 11, "mosi_pin": 10, "miso_pin": 9}
+_QUADRATURE = ((False, False), (True, False), (True, True), (False, True))
+
+
+class _FactoryDevice(Device):  # type: ignore[misc]
+    """Placed after SPISoftwareBus in the MRO: gpiozero 2.0.1's software SPI bus calls
+    Device.__init__ without its pin factory, which would look up (and set) the
+    global default factory; this hands it the bus's own factory instead."""
+
+    bus_factory: Any = None
+
+    def __init__(self, *, pin_factory: Any = None) -> None:
+        super().__init__(pin_factory=pin_factory or self.bus_factory)
+
+
+class _Bus(SPISoftwareBus, _FactoryDevice):  # type: ignore[misc]
+    @classmethod
+    def _shared_key(cls, clock_pin: Any, mosi_pin: Any, miso_pin: Any, *, pin_factory: Any) -> Any:
+        # Shared per factory, not per process: each test has its own mock pins.
+        return (id(pin_factory), clock_pin, mosi_pin, miso_pin)
+
+
+class _MockSPI(MockSPIInterface):  # type: ignore[misc]
+    """gpiozero's mock software SPI, on a bus that keeps to its own factory."""
+
+    def __init__(
+        self, clock_pin: Any, mosi_pin: Any, miso_pin: Any, select_pin: Any, *, pin_factory: Any
+    ) -> None:
+        self._bus = None
+        self._select = None
+        Device.__init__(self, pin_factory=pin_factory)
+        try:
+            self._clock_phase = False
+            self._lsb_first = False
+            self._bits_per_word = 8
+            bus = type("_FactoryBus", (_Bus,), {"bus_factory": pin_factory})
+            self._bus = bus(clock_pin, mosi_pin, miso_pin, pin_factory=pin_factory)
+            self._select = OutputDevice(select_pin, active_high=False, pin_factory=pin_factory)
+        except BaseException:
+            self.close()
+            raise
+
+
+class _MockSPIShared(SharedMixin, _MockSPI):  # type: ignore[misc]
+    """Both MCP3008 channels share one chip select, as on the board."""
+
+    @classmethod
+    def _shared_key(
+        cls, clock_pin: Any, mosi_pin: Any, miso_pin: Any, select_pin: Any, *, pin_factory: Any
+    ) -> Any:
+        return (id(pin_factory), clock_pin, select_pin)
+
+
+class MockWinchFactory(MockFactory):  # type: ignore[misc]
+    """A MockFactory whose `pwm_pins` are PWM-capable (the rest plain mock pins)."""
+
+    def __init__(self, pwm_pins: set[int]) -> None:
+        super().__init__()
+        self._pwm_names = {f"GPIO{pin}" for pin in pwm_pins}
+
+    def _get_spi_class(self, shared: bool, hardware: bool) -> Any:
+        return _MockSPIShared if shared else _MockSPI
+
+    def pin(self, name: Any, pin_class: Any = None, **kwargs: Any) -> Any:
+        if pin_class is None:
+            for _header, info in self.board_info.find_pin(name):
+                if info.name in self._pwm_names:
+                    pin_class = MockPWMPin
+                break
+        return super().pin(name, pin_class=pin_class, **kwargs)
+
+
+class _MockMCP3008(MockSPIDevice):  # type: ignore[misc]
+    """The slave side of an MCP3008: answers a single-ended read of a channel."""
+
+    def __init__(self, factory: MockFactory, select_pin: int, read: Any) -> None:
+        super().__init__(select_pin=select_pin, pin_factory=factory, **_SPI0)
+        self._read_channel = read
+
+    def on_bit(self) -> None:
+        # Tx 0000000 1 M CCC ..., Rx ... x 0 R9..R0: answer once the channel is in.
+        if self.rx_bit == 12:
+            bits = self.rx_buf[9:12]
+            channel = bits[0] << 2 | bits[1] << 1 | bits[2]
+            fraction = min(max(float(self._read_channel(channel)), 0.0), 1.0)
+            self.tx_word(round(fraction * 1023), 12)
+
+
+@dataclass
+class DrumFaults:
+    jam_at_m: float | None = None  # the drum stops turning here on the way out
+    jam_in_at_m: float | None = None  # ... or here on the way in (a line caught on the way up)
+    snag_at_m: float | None = None  # the switch closes here on the way out
+    switch_stuck_open: bool = False  # the switch never closes
+    lose_every: int = 0  # every n-th pulse paying out is lost (a slipping line), 0 = none
+    overcurrent_a: float | None = None  # the motor draws this whenever it runs
+
+
+class SimulatedDrum:
+    def __init__(
+        self,
+        factory: MockFactory,
+        cfg: WinchGpioSettings,
+        *,
+        full_speed_m_s: float = 0.5,
+        line_m: float = 0.0,
+        faults: DrumFaults | None = None,
+        running_current_a: float = 1.2,
+        supply_v: float = 12.0,
+        step_s: float = 0.001,
+    ) -> None:
+        self.cfg = cfg
+        self.factory = factory
+        self.drum = Drum(cfg.pulses_per_rev, cfg.drum_diameter_m)
+        self.full_speed_m_s = full_speed_m_s
+        self.faults = faults or DrumFaults()
+        self.running_current_a = running_current_a
+        self.supply_v = supply_v
+        self.step_s = step_s
+        self._line = line_m
+        self.max_line_seen = line_m
+        self.pulses_sent = 0
+        self._lock = threading.Lock()
+        self._pay_out = factory.pin(cfg.payout_pin)
+        self._haul_in = factory.pin(cfg.haulin_pin)
+        self._enable = factory.pin(cfg.enable_pin, pin_class=MockPWMPin)
+        self._switch = factory.pin(cfg.switch_pin)
+        self._a = factory.pin(cfg.pulse_pin)
+        self._b = factory.pin(cfg.encoder_b_pin) if cfg.counter == "quadrature" else None
+        self._phase = math.floor(line_m / self.drum.metres_per_pulse)
+        self._quad = 0
+        self._switch_closed: bool | None = None
+        self._current = CurrentSensor(cfg.adc_vref_v, cfg.current_zero_v, cfg.current_v_per_a)
+        self._divider = VoltageDivider(cfg.adc_vref_v, cfg.divider_r1_ohm, cfg.divider_r2_ohm)
+        self.adc = (
+            _MockMCP3008(factory, 8 - cfg.adc_spi_device, self._adc_channel) if cfg.adc else None
+        )
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @classmethod
+    def factory_for(cls, cfg: WinchGpioSettings) -> MockWinchFactory:
+        return MockWinchFactory({cfg.enable_pin})
+
+    # ------------------------------------------------------------ observing
+
+    @property
+    def line_m(self) -> float:
+        with self._lock:
+            return self._line
+
+    def motor(self) -> tuple[int, float]:
+        """(direction -1/0/+1, duty) as the H-bridge pins say now."""
+        duty = float(self._enable.state)
+        out, into = bool(self._pay_out.state), bool(self._haul_in.state)
+        if duty <= 0 or out == into:
+            return 0, 0.0
+        return (1 if out else -1), duty
+
+    def motor_current_a(self) -> float:
+        direction, duty = self.motor()
+        if direction == 0:
+            return 0.0
+        if self.faults.overcurrent_a is not None:
+            return self.faults.overcurrent_a
+        if self._jammed(direction):
+            return self.running_current_a * 4
+        return self.running_current_a * duty
+
+    # ------------------------------------------------------------ running
+
+    def start(self) -> None:
+        self.step(0.0)  # the switch's first state, before anyone moves
+        self._thread = threading.Thread(target=self._run, name="simulated-drum", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5)
+        if self.adc is not None:
+            self.adc.close()
+
+    def _run(self) -> None:
+        last = time.monotonic()
+        while not self._stop.wait(self.step_s):
+            now = time.monotonic()
+            self.step(now - last)
+            last = now
+
+    def step(self, dt: float) -> None:
+        """Advance the drum by `dt` seconds of the motor as it is now."""
+        direction, duty = self.motor()
+        with self._lock:
+            line = self._line
+            if direction and not self._jammed(direction):
+                line += direction * duty * self.full_speed_m_s * dt
+                if not self.faults.switch_stuck_open:
+                    line = max(line, 0.0)  # the probe is up against the block
+            self._line = line
+            self.max_line_seen = max(self.max_line_seen, line)
+        phase = math.floor(line / self.drum.metres_per_pulse + 1e-9)
+        while phase != self._phase:
+            step = 1 if phase > self._phase else -1
+            self._phase += step
+            self._pulse(step)
+        self._drive_switch(line, direction)
+
+    def _jammed(self, direction: int) -> bool:
+        out, into = self.faults.jam_at_m, self.faults.jam_in_at_m
+        if direction > 0:
+            return out is not None and self._line >= out
+        return into is not None and self._line <= into
+
+    def _pulse(self, step: int) -> None:
+        self.pulses_sent += 1
+        lose = self.faults.lose_every
+        if step > 0 and lose and self.pulses_sent % lose == 0:
+            return
+        if self._b is None:
+            idle = self.cfg.pulse_pull == "up"  # pulled up: a pulse is a dip to low
+            self._set(self._a, not idle)
+            self._set(self._a, idle)
+            return
+        # Four transitions of the Gray code per step, forwards or backwards.
+        for _ in range(4):
+            self._quad = (self._quad + step) % 4
+            a, b = _QUADRATURE[self._quad]
+            self._set(self._a, not a)  # pulled up: idle high
+            self._set(self._b, not b)
+
+    def _drive_switch(self, line: float, direction: int) -> None:
+        closed = line <= self.drum.metres_per_pulse / 4
+        snag = self.faults.snag_at_m
+        if snag is not None and direction > 0 and line >= snag:
+            closed = True
+        if self.faults.switch_stuck_open:
+            closed = False
+        if closed == self._switch_closed:
+            return
+        self._switch_closed = closed
+        high = closed == (self.cfg.switch_active == "high")
+        if self.cfg.switch_pull == "up":
+            high = not closed
+        elif self.cfg.switch_pull == "down":
+            high = closed
+        self._set(self._switch, high)
+
+    @staticmethod
+    def _set(pin: Any, high: bool) -> None:
+        if high:
+            pin.drive_high()
+        else:
+            pin.drive_low()
+
+    def _adc_channel(self, channel: int) -> float:
+        if channel == self.cfg.current_channel:
+            return current_fraction(self._current, self.motor_current_a())
+        if channel == self.cfg.voltage_channel:
+            return self._divider.fraction(self.supply_v)
+        return 0.0
+
+
+def mock_drum_for(settings: Settings) -> SimulatedDrum:
+    """The drum behind `--winch gpio-mock`: the simulated winch's fault injection works
+    on it too (--simulate --winch gpio-mock --winch-stall / --winch-fail-home)."""
+    cfg = settings.winch.gpio
+    sim = settings.winch.sim
+    faults = DrumFaults(jam_at_m=sim.stall_at_m, jam_in_at_m=0.5 if sim.fail_home else None)
+    speed = cfg.line_speed_m_s / cfg.payout_duty
+    return SimulatedDrum(SimulatedDrum.factory_for(cfg), cfg, full_speed_m_s=speed, faults=faults)
