@@ -281,6 +281,8 @@ def check_service(system: System, settings: Settings) -> Iterator[Check]:
 
 
 def run_checks(system: System, config: Path | None = None) -> list[Check]:
+    from cc_daemon.cli.doctor.software import check_software
+
     first, settings = load_config(system, config)
     results = [first]
     if settings is None:
@@ -289,6 +291,7 @@ def run_checks(system: System, config: Path | None = None) -> list[Check]:
     results.append(user)
     results += check_serial(system, settings, who)
     results += check_gpio(system, settings, who)
+    results += check_software(settings, system.installed)
     results += check_journal(system, settings, who)
     results.append(check_clock(system))
     results += check_service(system, settings)

@@ -101,7 +101,8 @@ def native_pin_factory() -> Any:
     except ImportError as exc:
         raise WinchFault(
             "cannot drive the GPIO winch: the lgpio library is missing "
-            "(on the Pi: sudo apt install python3-lgpio, or pip install 'cc-daemon[pi]')"
+            "(sudo make install installs it for a GPIO configuration; in a venv: "
+            "pip install 'cc-daemon[pi]')"
         ) from exc
     try:
         return LGPIOFactory()
