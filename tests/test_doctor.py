@@ -20,9 +20,10 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.cli.doctor.checks import Check, run_checks
+from cc_daemon.cli.doctor.checks import run_checks
 from cc_daemon.cli.doctor.command import format_checks
 from cc_daemon.cli.doctor.system import System
+from cc_daemon.cli.doctor.verdict import Check
 from cc_daemon.daemon.status_server import StatusServer
 from cc_daemon.ground.clocksync import ClockSync
 from cc_daemon.sim.pty import PtyPair

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 
-from cc_daemon.cli.doctor.checks import Check
+from cc_daemon.cli.doctor.verdict import Check
 from cc_daemon.config import Settings
 from cc_daemon.daemon.simgate import backend_name, is_simulated
 
