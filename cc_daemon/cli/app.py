@@ -161,12 +161,13 @@ def build_parser() -> argparse.ArgumentParser:
     from cc_daemon.cli import sonde as sondecli
     from cc_daemon.cli import winch as winchcli
     from cc_daemon.cli.doctor import command as doctor_cli
+    from cc_daemon.cli.parser import HintingParser
     from cc_daemon.cli.status import command as status_cli
     from cc_daemon.sim import commands as simulator
     from cc_daemon.sim import sonar_cli
     from cc_daemon.sim import sondecli as simulate_sonde
 
-    parser = argparse.ArgumentParser(
+    parser: argparse.ArgumentParser = HintingParser(
         prog="cc-daemon",
         description="Companion-computer daemon of an autonomous survey boat.",
         epilog="Run without a command to start the daemon.",
