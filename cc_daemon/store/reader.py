@@ -88,6 +88,10 @@ class FixRecord(NamedTuple):
     alt_m: float
     sonar_distance_m: float
     sonar_confidence_pct: int
+    # The autopilot's clock, decoded in the byte order its session settled on (the
+    # first frames re-decoded once the order was learnt); None before journal v6.
+    ap_time_s: int | None = None
+    ap_time_order: str | None = None
 
 
 class EventRecord(NamedTuple):
@@ -126,7 +130,7 @@ _CAST_COLUMNS = (
 )
 _FIX_COLUMNS = (
     "session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s, lat_e7, lon_e7, alt_mm,"
-    " sonar_distance_mm, sonar_confidence_pct"
+    " sonar_distance_mm, sonar_confidence_pct, ap_time_s, ap_time_order"
 )
 
 
@@ -161,7 +165,17 @@ def _cast(row: tuple[Any, ...]) -> CastRecord:
     )
 
 
-def _fix(row: tuple[Any, ...]) -> FixRecord:
+def _decoded(raw: int, order: str | None, stored: int | None) -> int | None:
+    """The timestamp's two bytes (stored read big-endian) in the session's byte order."""
+    if order == "little":
+        return ((raw & 0xFF) << 8) | (raw >> 8)
+    if order == "big":
+        return raw
+    return stored
+
+
+def _fix(row: tuple[Any, ...], orders: dict[int | None, str]) -> FixRecord:
+    order = orders.get(row[0], row[12])
     return FixRecord(
         session_id=row[0],
         mono_s=row[1],
@@ -174,6 +188,8 @@ def _fix(row: tuple[Any, ...]) -> FixRecord:
         alt_m=row[8] / 1000.0,
         sonar_distance_m=row[9] / 1000.0,
         sonar_confidence_pct=row[10],
+        ap_time_s=_decoded(row[5], order, row[11]),
+        ap_time_order=order,
     )
 
 
@@ -329,7 +345,17 @@ class JournalReader:
             params.append(since)
         where = f" WHERE {' AND '.join(clauses)}" if clauses else ""
         rows = self._conn.execute(f"SELECT {_FIX_COLUMNS} FROM fixes{where} ORDER BY id", params)
-        return [_fix(row) for row in rows]
+        orders = self._session_orders()
+        return [_fix(row, orders) for row in rows]
+
+    def _session_orders(self) -> dict[int | None, str]:
+        """Each session's last byte order: "big" until the daemon learnt the order, then
+        the one it learnt, so the frames before that are re-decoded with it."""
+        rows = self._conn.execute(
+            "SELECT session_id, ap_time_order, max(id) FROM fixes"
+            " WHERE ap_time_order IS NOT NULL AND session_id IS NOT NULL GROUP BY session_id"
+        )
+        return {session: order for session, order, _ in rows}
 
     def events(self, *, since: float | None = None) -> list[EventRecord]:
         where, params = self._filters(("wall_s >=", since))
