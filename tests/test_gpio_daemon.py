@@ -388,3 +388,21 @@ def test_simulate_typed_as_a_command_is_answered_with_the_option(
     err = capsys.readouterr().err
     assert "invalid choice: 'simulate'" in err
     assert err.rstrip().endswith("(did you mean: cc-daemon --simulate?)")
+
+
+def test_a_start_that_cannot_drive_the_winch_leaves_no_journal(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from importlib.util import find_spec
+
+    if find_spec("lgpio") is not None:
+        pytest.skip("lgpio is installed here: the daemon would open the GPIO chip")
+    monkeypatch.chdir(tmp_path)
+    for name in [n for n in __import__("os").environ if n.startswith("CC_DAEMON_")]:
+        monkeypatch.delenv(name)
+    with PtyPair(tmp_path / "tty") as pty:
+        code = main(["--winch", "gpio", "--port", str(pty.path)])
+    assert code == 1
+    assert "the lgpio library is missing" in capsys.readouterr().err
+    # `cc-daemon casts` must not find an empty journal of a run that never ran.
+    assert list(tmp_path.glob("cc-daemon.db*")) == []

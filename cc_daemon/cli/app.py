@@ -213,6 +213,7 @@ def _run_daemon(args: argparse.Namespace) -> int:
     from cc_daemon.daemon.reload import Reloader
     from cc_daemon.daemon.service import Daemon
     from cc_daemon.daemon.simgate import check_backend_allowed
+    from cc_daemon.drivers.winch.factory import check_pin_library
     from cc_daemon.sim.devices import SIMULATORS
 
     # From the first moment: the SSH session that started us closing must not
@@ -221,6 +222,7 @@ def _run_daemon(args: argparse.Namespace) -> int:
     settings = _load(args)
     check_paths(settings)  # a port or journal path that can never work: exit 2 now
     check_backend_allowed(settings)  # a simulated winch not asked for: exit 2, nothing opened
+    check_pin_library(settings)  # no lgpio for a GPIO winch: exit 1 before the journal exists
     _configure_daemon_logging(settings)
     daemon = Daemon(settings, journal=open_journal(settings), simulators=SIMULATORS)
     reloader = Reloader(daemon, lambda: _load(args), _configure_daemon_logging)
