@@ -183,3 +183,26 @@ def test_before_any_t_there_is_nothing_to_miss() -> None:
     watch = LostStartWatch(silence_s=3.0)
     watch.corrupt()
     assert watch.check(30.0, cast_running=False) is None
+
+
+def test_a_silence_while_our_port_is_down_is_no_lost_m() -> None:
+    # --corrupt 0.02 --drop-link-at 6: corrupt frames, then the cable goes.
+    watch = LostStartWatch(silence_s=3.0)
+    watch.heard(10.0)
+    watch.corrupt()
+    watch.link(False, 11.0)
+    assert watch.check(20.0, cast_running=False) is None  # the cable is quiet, not the boat
+    watch.link(True, 20.0)
+    assert watch.check(22.0, cast_running=False) is None  # the silence starts over
+    watch.heard(22.5)  # T again: nothing was lost
+    assert watch.check(40.0, cast_running=False) is None
+
+
+def test_a_silence_that_outlasts_the_reconnection_is_still_a_lost_m() -> None:
+    watch = LostStartWatch(silence_s=3.0)
+    watch.heard(10.0)
+    watch.corrupt()
+    watch.link(False, 11.0)
+    watch.link(True, 15.0)
+    lost = watch.check(18.5, cast_running=False)
+    assert lost is not None and lost.silent_for_s == 3.5

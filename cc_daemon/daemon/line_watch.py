@@ -86,6 +86,9 @@ class LineWatch:
     def corrupt(self) -> None:
         self.lost.corrupt()
 
+    def link_changed(self, up: bool, now: float) -> None:
+        self.lost.link(up, now)
+
     def finished_sent(self, frame: Finished, now: float) -> None:
         self.rf.sent(frame, now)
 

@@ -432,6 +432,7 @@ class Daemon(CastRunner):
     # ------------------------------------------------------------ link side
 
     def _on_link_state(self, up: bool, reason: str) -> None:
+        self._line.link_changed(up, self._clock.monotonic())
         if up:
             kind = "port_regained" if self.port_losses else "port_opened"
             self._journal_event(kind, port=self.link.port)

@@ -6,7 +6,9 @@ then nothing until it reads `R-F`. If `T` frames stop for more than
 running, the likeliest story is a corrupt `M`: the boat now waits at the
 station for ever. Nothing can be sent (we cannot answer an `M` we did not
 read); this watch only says so, once per silence, so the shell can log it at
-error, journal it and show it in the status.
+error, journal it and show it in the status. A silence while our own serial
+port is down is no evidence (the cable, not the autopilot, is quiet): no
+suspicion while the link is down, and the silence starts over when it is back.
 
 Pure: told about `T` frames and corrupt frames, asked at `now`.
 """
@@ -29,6 +31,7 @@ class LostStartWatch:
         self.silence_s = silence_s
         self._last_t: float | None = None
         self._corrupt = 0
+        self._link_up = True
         self.suspected: LostStart | None = None  # set while the silence lasts
 
     def heard(self, now: float) -> None:
@@ -41,10 +44,18 @@ class LostStartWatch:
     def corrupt(self) -> None:
         self._corrupt += 1
 
+    def link(self, up: bool, now: float) -> None:
+        """Our serial port went down or came back at `now`."""
+        self._link_up = up
+        if up and self._last_t is not None:
+            self._last_t = now  # only a silence heard on a working cable counts
+
     def check(self, now: float, cast_running: bool) -> LostStart | None:
         """A new suspicion at `now` (once per silence), else None."""
         last = self._last_t
         if self.suspected is not None or last is None or cast_running or not self._corrupt:
+            return None
+        if not self._link_up:
             return None
         if now - last <= self.silence_s:
             return None
