@@ -456,7 +456,7 @@ class Daemon(CastRunner):
     def _on_data(self, data: bytes) -> None:
         for message in self._parser.events(data):  # in stream order, errors included
             if isinstance(message, CorruptFrame):
-                self._line.corrupt()
+                self._line.corrupt(self._clock.monotonic())
                 self._quiet.corrupt()
                 continue
             self._quiet.heard()
