@@ -99,6 +99,13 @@ def _run_decode(args: argparse.Namespace) -> int:
         if args.hex:
             chunks = [parse_hex(" ".join(args.hex))]
         else:
+            if sys.stdin.isatty():  # a person at a terminal, not a pipe: say what we wait for
+                print(
+                    "cc-daemon decode: reading hex or bytes from standard input "
+                    "(Ctrl-D to end, Ctrl-C to stop)",
+                    file=sys.stderr,
+                    flush=True,
+                )
             raw = read_stdin_chunks(sys.stdin.buffer, hex_text=args.hex_stdin)
             chunks = raw if args.hex_stdin else keeping_head(raw, head, HEX_SNIFF_BYTES)
         parser = Parser(Sender.BOTH, accept_g_alias=args.accept_g_alias)
