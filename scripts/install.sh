@@ -11,8 +11,9 @@
 #   PREFIX     where the venv, docs and examples go (/opt/cc-daemon; the unit's
 #              ExecStart= expects that path)
 #   PYTHON     the interpreter the venv is made from (python3, >= 3.11)
-#   EXTRAS     pip extras to install, comma-separated; by default those the configured
-#              winch backend needs ("gpio" when backend = "gpio" and the package has it)
+#   EXTRAS     pip extras to install, comma-separated; by default what the installed
+#              service and its commands use: "plot,netcdf" (plots and NetCDF exports on
+#              the Pi), and "pi" (lgpio) when the configuration drives the GPIO winch
 #   PIP_ARGS   extra arguments for pip (e.g. --no-index --find-links DIR, offline)
 #
 # Installing twice is safe: an existing configuration is never overwritten, the venv
@@ -53,11 +54,15 @@ extras() {
     # The backend the configuration in force selects (the shipped one on a first install).
     local config="$CONFIG"
     [[ -f "$config" ]] || config="$SRC/config/cc-daemon.toml"
-    local backend
+    local backend wanted="plot,netcdf"
     backend="$(sed -n '/^\[winch\]/,/^\[/{s/^backend *= *"\([a-z]*\)".*/\1/p}' "$config" | head -n1)"
-    if [[ "$backend" == "gpio" ]] && grep -q '^gpio *= *\[' "$SRC/pyproject.toml"; then
-        printf 'gpio'
-    fi
+    # The extras' names are pyproject.toml's: fail loudly if one is ever renamed.
+    local extra
+    for extra in pi plot netcdf; do
+        grep -q "^$extra *= *\[" "$SRC/pyproject.toml" || die "pyproject.toml has no extra '$extra'"
+    done
+    [[ "$backend" == "gpio" ]] && wanted="pi,$wanted"
+    printf '%s' "$wanted"
 }
 
 make_users() {
@@ -86,6 +91,17 @@ make_venv() {
     # shellcheck disable=SC2086
     "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps \
         --force-reinstall $PIP_ARGS "$SRC"
+    relocate_venv
+}
+
+relocate_venv() {
+    # Staged under DESTDIR, pip wrote the staging path into every script's shebang and
+    # into pyvenv.cfg: the tree would not run once moved to /. Name the final path.
+    [[ -n "$DESTDIR" ]] || return 0
+    local staged="$VENV" final="$PREFIX/.venv" file
+    while IFS= read -r -d '' file; do
+        sed -i "s#$staged#$final#g" "$file"
+    done < <(grep -rlIZ -F -- "$staged" "$VENV/bin" "$VENV/pyvenv.cfg" || true)
 }
 
 install_files() {

@@ -253,5 +253,5 @@ async def test_a_lost_m_shows_in_the_systemd_status_line(tmp_path: Path) -> None
     lost = [s for s in statuses if "start-measuring frame may have been lost" in s]
     assert len(lost) == 1
     # (Each line may carry the simulated winch's prefix: FAST_CAST runs the sim winch.)
-    again = [i for i, s in enumerate(statuses) if s.endswith("telemetry from the autopilot again")]
+    again = [i for i, s in enumerate(statuses) if s.endswith("frames from the autopilot again")]
     assert again and statuses.index(lost[0]) < again[0]

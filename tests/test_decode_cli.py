@@ -302,3 +302,41 @@ def test_subprocess_non_hex_exits_2() -> None:
     assert done.returncode == 2
     assert done.stdout == b""
     assert b"not hex" in done.stderr
+
+
+def test_at_a_terminal_decode_says_what_it_waits_for_and_ctrl_c_is_quiet() -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from tests.daemonkit import REPO
+
+    for stop in ("ctrl-d", "ctrl-c"):
+        master, slave = os.openpty()  # a terminal in its cooked mode: Ctrl-D is end of input
+        try:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "cc_daemon", "decode"],
+                stdin=slave,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                env={**os.environ, "PYTHONPATH": str(REPO)},
+            )
+            assert proc.stderr is not None
+            prompt = proc.stderr.readline().decode()
+            assert prompt == (
+                "cc-daemon decode: reading hex or bytes from standard input "
+                "(Ctrl-D to end, Ctrl-C to stop)\n"
+            )
+            if stop == "ctrl-d":
+                os.write(master, b"\x04")
+            else:
+                time.sleep(0.2)
+                proc.send_signal(signal.SIGINT)
+            _, err = proc.communicate(timeout=20)
+        finally:
+            os.close(master)
+            os.close(slave)
+        assert b"Traceback" not in err, err
+        assert proc.returncode == (0 if stop == "ctrl-d" else 130), err

@@ -9,6 +9,7 @@ directory (free space, clock, systemd's opinion) are injected.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import os
 import subprocess
@@ -19,9 +20,10 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.cli.doctor.checks import Check, run_checks
+from cc_daemon.cli.doctor.checks import run_checks
 from cc_daemon.cli.doctor.command import format_checks
 from cc_daemon.cli.doctor.system import System
+from cc_daemon.cli.doctor.verdict import Check
 from cc_daemon.daemon.status_server import StatusServer
 from cc_daemon.ground.clocksync import ClockSync
 from cc_daemon.sim.pty import PtyPair
@@ -72,6 +74,7 @@ def healthy_pi(tmp_path: Path) -> Pi:
         statvfs=statvfs(30 * 10**9),
         clock=lambda: ClockSync(True, 0.012, "adjtimex"),
         service_state=lambda: "active",
+        installed=lambda module: True,  # the Pi's venv, as the installer makes it
     )
     server = StatusServer(
         root / "run/cc-daemon/status.sock",
@@ -119,6 +122,8 @@ async def test_a_healthy_pi_is_all_ok(pi: Pi) -> None:
         "port free": "OK",
         "UART": "OK",
         "GPIO": "OK",
+        "lgpio": "OK",
+        "plots and NetCDF": "OK",
         "journal": "OK",
         "clock": "OK",
         "service": "OK",
@@ -180,7 +185,9 @@ def plant_readonly_journal(pi: Pi) -> None:
 
 
 def plant_journal_outside(pi: Pi) -> None:
-    pi.write("/etc/cc-daemon/cc-daemon.toml", '[store]\npath = "/home/pi/survey.db"\n')
+    # (with the GPIO winch: the default simulated winch would be a second FAIL of its own)
+    config = '[winch]\nbackend = "gpio"\n[store]\npath = "/home/pi/survey.db"\n'
+    pi.write("/etc/cc-daemon/cc-daemon.toml", config)
 
 
 def plant_full_disk(pi: Pi) -> None:
@@ -290,3 +297,40 @@ async def test_an_unreadable_configuration_says_how_to_read_it(
     assert list(checks) == ["config"]
     assert checks["config"].level == "FAIL" and "not readable by you" in checks["config"].detail
     assert "usermod -aG cc-daemon" in checks["config"].fix
+
+
+async def test_a_missing_library_the_configuration_uses_is_a_fail(pi: Pi) -> None:
+    pi.system = dataclasses.replace(pi.system, installed=lambda module: module != "lgpio")
+    checks = await pi.checks()
+    assert checks["lgpio"].level == "FAIL" and "cc-daemon[pi]" in checks["lgpio"].fix
+    assert checks["plots and NetCDF"].level == "OK"
+
+
+async def test_missing_plot_libraries_are_a_warning_only(pi: Pi) -> None:
+    pi.system = dataclasses.replace(
+        pi.system, installed=lambda module: module not in ("matplotlib", "netCDF4")
+    )
+    checks = await pi.checks()
+    assert checks["plots and NetCDF"].level == "WARN"
+    assert "matplotlib and netCDF4 not installed" in checks["plots and NetCDF"].detail
+    assert checks["lgpio"].level == "OK"
+
+
+async def test_a_simulated_winch_answering_the_autopilot_is_a_warning(pi: Pi) -> None:
+    config = pi.root / "etc/cc-daemon/cc-daemon.toml"
+    text = config.read_text().replace('backend = "gpio"', 'backend = "sim"', 1)
+    config.write_text(
+        text.replace("allow_outside_simulation = false", "allow_outside_simulation = true")
+    )
+    checks = await pi.checks()
+    assert checks["config"].level == "OK"
+    assert checks["winch"].level == "WARN" and "no probe moves" in checks["winch"].detail
+    assert "lgpio" not in checks
+
+
+async def test_a_sonde_without_pymodbus_is_a_fail(pi: Pi) -> None:
+    config = pi.root / "etc/cc-daemon/cc-daemon.toml"
+    config.write_text(config.read_text().replace('backend = "none"', 'backend = "modbus"', 1))
+    pi.system = dataclasses.replace(pi.system, installed=lambda module: module != "pymodbus")
+    checks = await pi.checks()
+    assert checks["pymodbus"].level == "FAIL" and "sonde.backend" in checks["pymodbus"].detail

@@ -300,3 +300,29 @@ def test_exports_carry_each_quantity_at_its_real_precision(
         assert nc["depth"][0] == 0.144
         assert nc["lat"][0] == 40.4506308
         assert nc["depth"].dtype.str == "<f8"
+
+
+def test_telemetry_csv_has_the_autopilots_clock_in_the_byte_order_it_settled_on(
+    tmp_path: Path,
+) -> None:
+    from cc_daemon.core.protocol import Telemetry
+
+    # The deployed firmware sends its seconds little-endian; the daemon reads them
+    # big-endian until it has learnt the order (here after three frames), so the
+    # journal holds 0, 256, 512 decoded "big", then 3, 4 decoded "little".
+    clock = FakeClock()
+    journal = Journal(tmp_path / "j.db", monotonic=clock.monotonic, wall=clock.wall)
+    journal.open()
+    for second, order in enumerate(["big", "big", "big", "little", "little"]):
+        raw = second << 8  # the two bytes little-endian, read big-endian
+        decoded = raw if order == "big" else second
+        fix = Telemetry(raw, -37260579, 404506308, 0, 6000, 90)
+        journal.record_fix(fix, ap_time_s=decoded, ap_time_order=order)
+        clock.advance(1.0)
+    journal.close()
+    with JournalReader(tmp_path / "j.db") as reader:
+        out = io.StringIO()
+        csv_export.write_fixes(reader.fixes(), out)
+    rows = list(csv.DictReader(io.StringIO(out.getvalue())))
+    assert [int(r["autopilot_timestamp_s"]) for r in rows] == [0, 1, 2, 3, 4]
+    assert {r["autopilot_byte_order"] for r in rows} == {"little"}

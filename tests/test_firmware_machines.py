@@ -153,7 +153,7 @@ def test_a_new_rf_restarts_the_count() -> None:
 def test_t_stopping_after_corrupt_frames_with_no_cast_is_a_lost_m_once() -> None:
     watch = LostStartWatch(silence_s=3.0)
     watch.heard(10.0)
-    watch.corrupt()
+    watch.corrupt(10.0)
     assert watch.check(13.0, cast_running=False) is None  # 3 s is not more than 3 s
     lost = watch.check(13.1, cast_running=False)
     assert lost is not None and lost.corrupt_frames == 1 and lost.silent_for_s == 3.1
@@ -168,18 +168,56 @@ def test_silence_alone_or_during_a_cast_is_no_lost_m(cast_running: bool) -> None
     watch = LostStartWatch(silence_s=3.0)
     watch.heard(0.0)
     if cast_running:
-        watch.corrupt()
+        watch.corrupt(0.5)
     assert watch.check(60.0, cast_running=cast_running) is None
 
 
 def test_corrupt_frames_before_the_last_t_do_not_count() -> None:
     watch = LostStartWatch(silence_s=3.0)
-    watch.corrupt()
+    watch.corrupt(4.0)
     watch.heard(5.0)
     assert watch.check(30.0, cast_running=False) is None
 
 
 def test_before_any_t_there_is_nothing_to_miss() -> None:
     watch = LostStartWatch(silence_s=3.0)
-    watch.corrupt()
+    watch.corrupt(1.0)
     assert watch.check(30.0, cast_running=False) is None
+
+
+def test_a_silence_while_our_port_is_down_is_no_lost_m() -> None:
+    # --corrupt 0.02 --drop-link-at 6: corrupt frames, then the cable goes.
+    watch = LostStartWatch(silence_s=3.0)
+    watch.heard(10.0)
+    watch.corrupt(10.5)
+    watch.link(False, 11.0)
+    assert watch.check(20.0, cast_running=False) is None  # the cable is quiet, not the boat
+    watch.link(True, 20.0)
+    assert watch.check(22.0, cast_running=False) is None  # the silence starts over
+    watch.heard(22.5)  # T again: nothing was lost
+    assert watch.check(40.0, cast_running=False) is None
+
+
+def test_a_silence_that_outlasts_the_reconnection_is_still_a_lost_m() -> None:
+    watch = LostStartWatch(silence_s=3.0)
+    watch.heard(10.0)
+    watch.corrupt(10.5)
+    watch.link(False, 11.0)
+    watch.link(True, 15.0)
+    lost = watch.check(18.5, cast_running=False)
+    assert lost is not None and lost.silent_for_s == 3.5
+
+
+def test_corrupt_frames_that_keep_coming_are_a_noisy_line_not_a_waiting_boat() -> None:
+    # --corrupt: two frames in a row spoilt; the autopilot still sends, so no lost M.
+    watch = LostStartWatch(silence_s=3.0)
+    watch.heard(10.0)
+    watch.corrupt(11.1)
+    watch.corrupt(12.2)
+    assert watch.check(13.4, cast_running=False) is None
+    watch.heard(13.3)
+    # After M the firmware sends nothing: the silence after the last corrupt frame.
+    watch.corrupt(14.4)
+    assert watch.check(17.4, cast_running=False) is None
+    lost = watch.check(17.5, cast_running=False)
+    assert lost is not None and lost.silent_for_s == 3.1 and lost.corrupt_frames == 1

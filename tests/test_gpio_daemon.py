@@ -152,10 +152,12 @@ async def test_an_immediate_stop_mid_descent_switches_the_motor_off_at_once(
 
 def test_a_simulated_winch_needs_to_be_asked_for_outside_simulation() -> None:
     sim = Settings()
-    with pytest.raises(ConfigError, match=r'winch.backend = "sim": a simulated winch'):
+    with pytest.raises(
+        ConfigError, match=r'winch.backend = "sim" \(default\): a simulated winch.*--simulate$'
+    ):
         check_backend_allowed(sim)
     mock = Settings.model_validate({"winch": {"backend": "gpio", "gpio": {"pin_factory": "mock"}}})
-    with pytest.raises(ConfigError, match=r'winch.gpio.pin_factory = "mock"'):
+    with pytest.raises(ConfigError, match=r'winch.gpio.pin_factory = "mock" \(given\)'):
         check_backend_allowed(mock)
     check_backend_allowed(Settings.model_validate({"winch": {"backend": "gpio"}}))
     allowed = Settings.model_validate({"winch": {"sim": {"allow_outside_simulation": True}}})
@@ -172,9 +174,11 @@ def test_the_daemon_refuses_the_default_simulated_winch_with_exit_2(
     for name in [n for n in __import__("os").environ if n.startswith("CC_DAEMON_")]:
         monkeypatch.delenv(name)
     assert main(["--port", str(tmp_path / "tty"), "--db", str(tmp_path / "j.db")]) == 2
-    assert "winch.sim.allow_outside_simulation = true" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "winch.sim.allow_outside_simulation = true" in err
+    assert 'winch.backend = "sim" (default)' in err and "cc-daemon --simulate" in err
     assert main(["--winch", "gpio-mock", "--db", str(tmp_path / "j.db")]) == 2
-    assert 'pin_factory = "mock"' in capsys.readouterr().err
+    assert 'winch.gpio.pin_factory = "mock" (from --winch)' in capsys.readouterr().err
     assert not (tmp_path / "j.db").exists()
 
 
@@ -373,3 +377,32 @@ async def test_the_simulated_winchs_fault_keys_jam_the_mock_drum(tmp_path: Path)
     assert isinstance(last, Finished) and last.depth_mm == 0
     [(outcome, reason, backend, _)] = _cast_rows(tmp_path)
     assert outcome == "aborted" and "stall: no drum pulse" in reason and backend == "gpio-mock"
+
+
+def test_simulate_typed_as_a_command_is_answered_with_the_option(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        main(["simulate"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "invalid choice: 'simulate'" in err
+    assert err.rstrip().endswith("(did you mean: cc-daemon --simulate?)")
+
+
+def test_a_start_that_cannot_drive_the_winch_leaves_no_journal(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from importlib.util import find_spec
+
+    if find_spec("lgpio") is not None:
+        pytest.skip("lgpio is installed here: the daemon would open the GPIO chip")
+    monkeypatch.chdir(tmp_path)
+    for name in [n for n in __import__("os").environ if n.startswith("CC_DAEMON_")]:
+        monkeypatch.delenv(name)
+    with PtyPair(tmp_path / "tty") as pty:
+        code = main(["--winch", "gpio", "--port", str(pty.path)])
+    assert code == 1
+    assert "the lgpio library is missing" in capsys.readouterr().err
+    # `cc-daemon casts` must not find an empty journal of a run that never ran.
+    assert list(tmp_path.glob("cc-daemon.db*")) == []

@@ -6,6 +6,7 @@ files), only rooted in a temporary directory: nothing on this machine changes.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import stat
@@ -65,14 +66,21 @@ def test_install_twice_then_uninstall(tmp_path: Path) -> None:
     groups = {line.split(":")[0] for line in (dest / "etc/group").read_text().splitlines()}
     assert "cc-daemon:" in passwd and "/usr/sbin/nologin" in passwd
     assert {"cc-daemon", "dialout", "gpio", "spi"} <= groups
-    # The venv really holds the package and its entry point.
+    # The venv really holds the package (its scripts name /opt: they run once moved, below).
     version = subprocess.run(
-        [str(venv / "bin/cc-daemon"), "--version"], capture_output=True, text=True, check=True
+        [str(venv / "bin/python"), "-m", "cc_daemon", "--version"],
+        capture_output=True,
+        text=True,
+        check=True,
     )
     assert version.stdout.startswith("cc-daemon ")
     # On everyone's PATH, pointing into the venv as the Pi will see it.
     link = dest / "usr/local/bin/cc-daemon"
     assert os.readlink(link) == "/opt/cc-daemon/.venv/bin/cc-daemon"
+    # The staged tree names its final place, never the staging directory.
+    assert str(dest) not in (venv / "bin/cc-daemon").read_text()
+    assert str(dest) not in (venv / "pyvenv.cfg").read_text()
+    moved_tree_runs(dest)
 
     # An operator's configuration survives a second install (an upgrade).
     config.write_text('[serial]\nport = "/dev/cc-autopilot"\n')
@@ -100,3 +108,48 @@ def test_real_install_needs_root_and_says_so(tmp_path: Path) -> None:
     result = make("install", None)
     assert result.returncode != 0
     assert "run as root" in result.stderr
+
+
+MOVE_TO_ROOT = r"""
+set -eu
+dest="$1"
+# The staged tree where the Pi will have it: /opt/cc-daemon and /etc/cc-daemon ...
+mount -t tmpfs none /opt
+mkdir /opt/cc-daemon
+mount --bind "$dest/opt/cc-daemon" /opt/cc-daemon
+mkdir -p "$dest.ov/upper" "$dest.ov/work"
+mount -t overlay overlay -o "lowerdir=/etc,upperdir=$dest.ov/upper,workdir=$dest.ov/work" /etc
+cp -a "$dest/etc/cc-daemon" /etc/cc-daemon
+# ... and the staging directory gone: a path into it would fail.
+mount -t tmpfs none "$dest"
+cd /
+/opt/cc-daemon/.venv/bin/cc-daemon --version
+/opt/cc-daemon/.venv/bin/cc-daemon doctor --json || test $? -eq 1
+"""
+
+
+def moved_tree_runs(dest: Path) -> None:
+    """Stage, move to / (in a private mount namespace), run --version and doctor there."""
+    if shutil.which("unshare") is None or os.geteuid() != 0:
+        pytest.skip("the moved tree is checked as root with unshare(1): not available here")
+    probe = subprocess.run(["unshare", "-m", "true"], capture_output=True, check=False)
+    if probe.returncode != 0:
+        pytest.skip(f"no private mount namespace here: {probe.stderr.decode().strip()}")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "VIRTUAL_ENV"))}
+    result = subprocess.run(
+        ["unshare", "-m", "sh", "-c", MOVE_TO_ROOT, "sh", str(dest)],
+        capture_output=True,
+        text=True,
+        check=False,
+        env=env,
+        timeout=60,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    version, doctor = result.stdout.split("\n", 1)
+    assert version.startswith("cc-daemon ")
+    checks = {c["name"]: c for c in json.loads(doctor)}
+    # The shipped configuration (the GPIO winch) with what it needs installed.
+    assert checks["config"]["level"] == "OK", checks["config"]
+    assert checks["lgpio"]["level"] == "OK", checks["lgpio"]
+    assert checks["plots and NetCDF"]["level"] == "OK", checks["plots and NetCDF"]
+    assert "Traceback" not in result.stderr

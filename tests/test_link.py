@@ -172,3 +172,51 @@ async def test_any_error_opening_the_port_is_retried(monkeypatch: pytest.MonkeyP
     await _run_for(link, 0.1)
     assert link.attempts[:2] == [1, 2]
     assert link.opens == 1
+
+
+async def test_a_port_locked_by_another_process_names_the_holder(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from cc_daemon.ground.waiting import WaitReport
+
+    pty = PtyPair(tmp_path / "tty")
+    # Another process holds the port with the lock pyserial takes (a second daemon).
+    holder = subprocess.Popen(  # noqa: ASYNC220 - started before the loop matters
+        [
+            sys.executable,
+            "-c",
+            "import fcntl, os, sys, time; fd = os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY);"
+            " fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB); print('locked', flush=True);"
+            " time.sleep(30)",
+            str(pty.path),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    said: list[str] = []
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "locked\n"
+        link = SerialLink(
+            str(pty.path),
+            on_data=lambda _: None,
+            reconnect_initial_s=0.02,
+            reconnect_max_s=0.05,
+            on_waiting=said.append,
+            wait_report=WaitReport(first_s=0.1, max_s=0.1),
+        )
+        task = asyncio.create_task(link.run())
+        try:
+            await _wait_for(lambda: len(said) >= 2)
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+    finally:
+        holder.kill()
+        holder.wait()
+        if holder.stdout is not None:
+            holder.stdout.close()
+        pty.close()
+    assert f"(held by pid {holder.pid} (python" in said[0], said
+    assert not link.up

@@ -19,7 +19,7 @@ from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig
 from cc_daemon.sim.mission import SonarReading as MissionReading
 from cc_daemon.sim.mission import make_mission
 from cc_daemon.sim.ping1d import Echo, FieldSounder, Ping1DDevice, Ping1DServer
-from cc_daemon.sim.pty import PtyPair
+from cc_daemon.sim.pty import PtyPair, make_raw
 from cc_daemon.sim.sonar_chain import attach_sonar
 from tests.test_sim_ping1d import ScriptedSounder
 
@@ -191,14 +191,44 @@ async def test_simulate_sonar_runs_alone_on_a_port(tmp_path: Path) -> None:
         assert b"1 requests, 1 readings sent" in out
 
 
-async def test_simulate_sonar_refuses_a_missing_port(tmp_path: Path) -> None:
+async def test_simulate_sonar_creates_a_pty_where_the_port_does_not_exist(
+    tmp_path: Path,
+) -> None:
+    # As simulate-sonde does: the path becomes a pty for a daemon's sonar.port.
+    path = tmp_path / "ttyPING"
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "cc_daemon", "simulate-sonar", "--port", str(path),
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        assert b"simulated Ping1D on" in await asyncio.wait_for(proc.stdout.readline(), 30)
+        assert path.is_symlink()
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            make_raw(fd)
+            os.write(fd, ping.request(ping.DISTANCE_SIMPLE))
+            stream, found = PingStream(), []
+            while not found:
+                chunk = await asyncio.wait_for(asyncio.to_thread(os.read, fd, 4096), 10)
+                found = [e for e in stream.feed(chunk) if isinstance(e.event, DistanceSimple)]
+        finally:
+            os.close(fd)
+    finally:
+        proc.terminate()
+        _, err = await asyncio.wait_for(proc.communicate(), 30)
+    assert proc.returncode == 0, err
+    assert not path.exists() and not path.is_symlink()  # the pty and its link are gone
+
+
+async def test_simulate_sonar_refuses_a_port_it_cannot_create(tmp_path: Path) -> None:
     proc = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
         "cc_daemon",
         "simulate-sonar",
         "--port",
-        str(tmp_path / "nothing"),
+        str(tmp_path / "no-such-dir" / "tty"),
         stderr=asyncio.subprocess.PIPE,
     )
     _, err = await asyncio.wait_for(proc.communicate(), 30)

@@ -132,7 +132,7 @@ def test_no_such_cast(db: Path, tmp_path: Path) -> None:
 def test_simulator_summary_lines(db: Path) -> None:
     from cc_daemon.sim.sondesummary import sonde_lines
 
-    (line,) = sonde_lines(db, 0.0)
+    (line,) = sonde_lines(db, 1)  # the journal's one session
     assert line.startswith("cast 1 sonde: 15 readings, 2 incomplete; surface 0.00 m")
     assert "temperature 24.00 degC" in line and "bottom 3.00 m" in line
     assert "ph 8.10," in line  # pH's unit "1" is not printed

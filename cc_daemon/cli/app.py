@@ -99,6 +99,13 @@ def _run_decode(args: argparse.Namespace) -> int:
         if args.hex:
             chunks = [parse_hex(" ".join(args.hex))]
         else:
+            if sys.stdin.isatty():  # a person at a terminal, not a pipe: say what we wait for
+                print(
+                    "cc-daemon decode: reading hex or bytes from standard input "
+                    "(Ctrl-D to end, Ctrl-C to stop)",
+                    file=sys.stderr,
+                    flush=True,
+                )
             raw = read_stdin_chunks(sys.stdin.buffer, hex_text=args.hex_stdin)
             chunks = raw if args.hex_stdin else keeping_head(raw, head, HEX_SNIFF_BYTES)
         parser = Parser(Sender.BOTH, accept_g_alias=args.accept_g_alias)
@@ -161,12 +168,13 @@ def build_parser() -> argparse.ArgumentParser:
     from cc_daemon.cli import sonde as sondecli
     from cc_daemon.cli import winch as winchcli
     from cc_daemon.cli.doctor import command as doctor_cli
+    from cc_daemon.cli.parser import HintingParser
     from cc_daemon.cli.status import command as status_cli
     from cc_daemon.sim import commands as simulator
     from cc_daemon.sim import sonar_cli
     from cc_daemon.sim import sondecli as simulate_sonde
 
-    parser = argparse.ArgumentParser(
+    parser: argparse.ArgumentParser = HintingParser(
         prog="cc-daemon",
         description="Companion-computer daemon of an autonomous survey boat.",
         epilog="Run without a command to start the daemon.",
@@ -212,6 +220,7 @@ def _run_daemon(args: argparse.Namespace) -> int:
     from cc_daemon.daemon.reload import Reloader
     from cc_daemon.daemon.service import Daemon
     from cc_daemon.daemon.simgate import check_backend_allowed
+    from cc_daemon.drivers.winch.factory import check_pin_library
     from cc_daemon.sim.devices import SIMULATORS
 
     # From the first moment: the SSH session that started us closing must not
@@ -220,6 +229,7 @@ def _run_daemon(args: argparse.Namespace) -> int:
     settings = _load(args)
     check_paths(settings)  # a port or journal path that can never work: exit 2 now
     check_backend_allowed(settings)  # a simulated winch not asked for: exit 2, nothing opened
+    check_pin_library(settings)  # no lgpio for a GPIO winch: exit 1 before the journal exists
     _configure_daemon_logging(settings)
     daemon = Daemon(settings, journal=open_journal(settings), simulators=SIMULATORS)
     reloader = Reloader(daemon, lambda: _load(args), _configure_daemon_logging)

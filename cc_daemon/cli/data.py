@@ -1,4 +1,4 @@
-"""The data commands of `cc-daemon`: `casts`, `export`, `plot` and `snapshot`.
+"""The data commands of `cc-daemon`: `casts`, `export`, `plot`, `snapshot`, `surveys`.
 
 This module owns the command-line surface for getting data out of the
 journal: the arguments, which records each command takes, which writer it
@@ -23,11 +23,13 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TextIO
 
+from cc_daemon.cli.surveys import add_survey_option, choose_survey, run_surveys, survey_choice
 from cc_daemon.config import load_settings
 from cc_daemon.core.errors import ConfigError
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import JournalReader, StoreError, default_store_path
 from cc_daemon.store.reader import CastRecord, iso_utc, parse_time
+from cc_daemon.store.surveys import LATEST
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -116,6 +118,7 @@ def add_commands(
     )
     casts.add_argument("--db", type=Path, default=db, metavar="PATH", help=db_help)
     casts.add_argument("--since", type=_since, metavar="TIME", help=since_help)
+    add_survey_option(casts)
     casts.set_defaults(handler=_run_casts)
 
     export = subparsers.add_parser(
@@ -131,8 +134,9 @@ def add_commands(
         choices=("samples", "telemetry", "events"),
         help="with --format csv: which records (default: samples)",
     )
-    export.add_argument("--cast", type=_cast_id, metavar="N", help="only cast N")
+    export.add_argument("--cast", type=_cast_id, metavar="N", help="only cast N (any survey)")
     export.add_argument("--since", type=_since, metavar="TIME", help=since_help)
+    add_survey_option(export)
     export.add_argument(
         "-o",
         "--output",
@@ -150,8 +154,15 @@ def add_commands(
     )
     plot.add_argument("--db", type=Path, default=db, metavar="PATH", help=db_help)
     which = plot.add_mutually_exclusive_group(required=True)
-    which.add_argument("--cast", type=_cast_id, metavar="N", help="plot cast N")
-    which.add_argument("--survey", action="store_true", help="plot the whole survey")
+    which.add_argument("--cast", type=_cast_id, metavar="N", help="plot cast N (any survey)")
+    which.add_argument(
+        "--survey",
+        type=survey_choice,
+        nargs="?",
+        const=LATEST,
+        metavar="N|all",
+        help="plot a survey's map: the latest, number N, or all of them",
+    )
     plot.add_argument("--since", type=_since, metavar="TIME", help=f"with --survey: {since_help}")
     plot.add_argument(
         "-o",
@@ -178,6 +189,16 @@ def add_commands(
     )
     snapshot.add_argument("--db", type=Path, default=db, metavar="PATH", help=db_help)
     snapshot.set_defaults(handler=_run_snapshot)
+
+    surveys = subparsers.add_parser(
+        "surveys",
+        help="list the surveys (daemon runs) in the journal",
+        description="A table of the surveys: number, start, end, stations, casts measured,"
+        " fixes, and whether the data are real or simulated. The data commands read the"
+        " latest unless given --survey N or --survey all.",
+    )
+    surveys.add_argument("--db", type=Path, default=db, metavar="PATH", help=db_help)
+    surveys.set_defaults(handler=lambda args: _guarded("surveys", _surveys, args))
 
 
 def _guarded(name: str, run: Handler, args: argparse.Namespace) -> int:
@@ -252,9 +273,14 @@ def format_casts(casts: Sequence[CastRecord]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _surveys(args: argparse.Namespace) -> int:
+    return run_surveys(journal_path(args))
+
+
 def _casts(args: argparse.Namespace) -> int:
     db = journal_path(args)
     with JournalReader(db) as reader:
+        choose_survey(reader, args.survey, "casts")
         casts = reader.casts(since=args.since)
     if not casts:
         print(f"no casts in {db}", file=sys.stderr)
@@ -291,6 +317,7 @@ def _export(args: argparse.Namespace) -> int:
     try:
         db = journal_path(args)
         with JournalReader(db) as reader:
+            choose_survey(reader, None if args.cast is not None else args.survey, "export")
             _check_cast(reader, args.cast, db)
             if args.format == "netcdf":
                 from cc_daemon.export import netcdf
@@ -336,7 +363,7 @@ def _export(args: argparse.Namespace) -> int:
 def _plot(args: argparse.Namespace) -> int:
     from cc_daemon.export import plot
 
-    if args.since is not None and not args.survey:
+    if args.since is not None and args.survey is None:
         raise _UsageError("--since applies to --survey only")
     try:
         plot.output_format(args.output)
@@ -344,7 +371,8 @@ def _plot(args: argparse.Namespace) -> int:
         raise _UsageError(str(exc)) from None
     db = journal_path(args)
     with JournalReader(db) as reader:
-        if args.survey:
+        choose_survey(reader, args.survey, "plot")
+        if args.survey is not None:
             casts = reader.casts(since=args.since)
             fixes = reader.fixes(since=args.since)
             plot.plot_survey(casts, fixes, args.output)

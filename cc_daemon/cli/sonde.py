@@ -19,8 +19,10 @@ from pathlib import Path
 from typing import TextIO
 
 from cc_daemon.cli.data import journal_path
+from cc_daemon.cli.surveys import add_survey_option, choose_survey, survey_choice
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import JournalReader, StoreError
+from cc_daemon.store.surveys import LATEST
 
 
 def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -34,7 +36,8 @@ def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     export = actions.add_parser("export", help="readings as CSV, profiles as NetCDF, stations")
     export.add_argument("--db", type=Path, metavar="PATH", help=db_help)
     export.add_argument("--format", required=True, choices=("csv", "netcdf", "geojson"))
-    export.add_argument("--cast", type=int, metavar="N", help="only cast N")
+    export.add_argument("--cast", type=int, metavar="N", help="only cast N (any survey)")
+    add_survey_option(export)
     export.add_argument("-o", "--output", type=Path, metavar="FILE", help="(default: stdout)")
     export.set_defaults(handler=_guarded)
     plot = actions.add_parser(
@@ -47,7 +50,14 @@ def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     plot.add_argument("--db", type=Path, metavar="PATH", help=db_help)
     which = plot.add_mutually_exclusive_group(required=True)
     which.add_argument("--cast", type=int, metavar="N", help="plot cast N's profiles")
-    which.add_argument("--survey", action="store_true", help="plot the whole survey")
+    which.add_argument(
+        "--survey",
+        type=survey_choice,
+        nargs="?",
+        const=LATEST,
+        metavar="N|all",
+        help="plot a survey: the latest, number N, or all of them",
+    )
     plot.add_argument("--parameter", metavar="NAME", help="with --survey: what to plot")
     plot.add_argument("--depth", type=float, metavar="M", help="with --survey: a map at M m")
     plot.add_argument("--section", action="store_true", help="with --survey: a section")
@@ -87,7 +97,7 @@ def _run(args: argparse.Namespace) -> int:
         return 2
     if (
         args.sonde_action == "plot"
-        and args.survey
+        and args.survey is not None
         and (args.parameter is None or (args.depth is None) == (not args.section))
     ):
         print(
@@ -100,6 +110,8 @@ def _run(args: argparse.Namespace) -> int:
         return 2
     db = journal_path(args)
     with JournalReader(db) as reader:
+        which = None if args.cast is not None else args.survey
+        choose_survey(reader, which, f"sonde {args.sonde_action}")
         casts = reader.casts(cast_id=args.cast)
         if args.cast is not None and not casts:
             raise StoreError(f"no cast {args.cast} in {db}")
@@ -108,10 +120,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.sonde_action == "plot":
         from cc_daemon.export import sondeplot
 
-        if args.survey and args.section:
+        if args.survey is not None and args.section:
             count = sondeplot.plot_section(casts, samples, columns, args.parameter, args.output)
             noun = f"a section of {args.parameter} ({count} readings)"
-        elif args.survey:
+        elif args.survey is not None:
             count = sondeplot.plot_map(
                 casts, samples, columns, args.parameter, args.depth, args.output
             )

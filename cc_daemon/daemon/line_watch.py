@@ -66,11 +66,16 @@ class LineWatch:
     def heard(self, message: Message, now: float) -> int:
         """Any frame from the autopilot: returns its time in its real value."""
         self.rf.frame_received()  # it speaks again: it read our R-F
+        # Any readable frame (T, S, the stick's U and D) says the autopilot is not
+        # waiting on a lost M: after M the firmware sends nothing until R-F.
+        if self.lost.suspected is not None:
+            _log.info(
+                "the autopilot speaks again: it was not waiting on a lost M",
+                frame=message.frame,
+            )
+            self._notify("STATUS=frames from the autopilot again")
+        self.lost.heard(now)
         if isinstance(message, Telemetry):
-            if self.lost.suspected is not None:
-                _log.info("telemetry again: the autopilot was not waiting on a lost M")
-                self._notify("STATUS=telemetry from the autopilot again")
-            self.lost.heard(now)
             decision = self.order.observe_telemetry(message.timestamp_s, now)
             if decision is not None:
                 _log.info(
@@ -83,8 +88,11 @@ class LineWatch:
                 self._event("timestamp_order", order=decision.order, votes=decision.votes)
         return self.order.decode(message.timestamp_s)
 
-    def corrupt(self) -> None:
-        self.lost.corrupt()
+    def corrupt(self, now: float) -> None:
+        self.lost.corrupt(now)
+
+    def link_changed(self, up: bool, now: float) -> None:
+        self.lost.link(up, now)
 
     def finished_sent(self, frame: Finished, now: float) -> None:
         self.rf.sent(frame, now)

@@ -55,6 +55,7 @@ from cc_daemon.core.winch.status import Winch, WinchStatus
 from cc_daemon.daemon.casting import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, ActiveCast, CastRunner
 from cc_daemon.daemon.line_watch import TICK_S, LineWatch
 from cc_daemon.daemon.preflight import make_journal
+from cc_daemon.daemon.quiet_port import QuietPort
 from cc_daemon.daemon.simgate import simulation_warning
 from cc_daemon.daemon.simulators import NO_SIMULATORS, Simulators
 from cc_daemon.daemon.sonde import SondeDuty, make_sonde
@@ -150,6 +151,7 @@ class Daemon(CastRunner):
         self._last_depth_m = 0.0
         self._output_loss_reported = False
         self._sonde: SondeDuty | None = None
+        self._quiet = QuietPort()
 
     # ------------------------------------------------------------ lifecycle
 
@@ -374,6 +376,10 @@ class Daemon(CastRunner):
             flush_rate_limited()
             self._notifier.watchdog()  # every second: fine for any WatchdogSec >= 2
             self._report_output_loss()
+            quiet = self._quiet.due(self._clock.monotonic(), self.link.port)
+            if quiet is not None:
+                _log.warning(quiet, port=self.link.port)
+                self._notifier.notify(f"STATUS={quiet}")
             tick += 1
             if tick % CORRUPT_SUMMARY_EVERY:
                 continue
@@ -432,6 +438,11 @@ class Daemon(CastRunner):
     # ------------------------------------------------------------ link side
 
     def _on_link_state(self, up: bool, reason: str) -> None:
+        self._line.link_changed(up, self._clock.monotonic())
+        if up:
+            self._quiet.opened(self._clock.monotonic())
+        else:
+            self._quiet.closed()
         if up:
             kind = "port_regained" if self.port_losses else "port_opened"
             self._journal_event(kind, port=self.link.port)
@@ -445,8 +456,10 @@ class Daemon(CastRunner):
     def _on_data(self, data: bytes) -> None:
         for message in self._parser.events(data):  # in stream order, errors included
             if isinstance(message, CorruptFrame):
-                self._line.corrupt()
+                self._line.corrupt(self._clock.monotonic())
+                self._quiet.corrupt()
                 continue
+            self._quiet.heard()
             self.frames_in += 1
             try:
                 self._handle(message)

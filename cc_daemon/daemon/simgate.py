@@ -37,14 +37,20 @@ def check_backend_allowed(settings: Settings) -> None:
     """The daemon outside --simulate: refuse a simulated winch not asked for by name."""
     if not is_simulated(settings) or settings.winch.sim.allow_outside_simulation:
         return
+    # Named as every bad value is: its value and where it came from ("(default)" on a
+    # laptop with no configuration file).
     if settings.winch.backend == "sim":
-        chosen = 'winch.backend = "sim"'
+        chosen = settings.describe("winch.backend")
     else:
-        chosen = 'winch.backend = "gpio" with winch.gpio.pin_factory = "mock"'
+        chosen = (
+            f"{settings.describe('winch.backend')} with "
+            f"{settings.describe('winch.gpio.pin_factory')}"
+        )
     raise ConfigError(
         f"{_PREFIX}{chosen}: a simulated winch would answer the autopilot for a probe that "
         "never moves; outside --simulate it runs only with "
-        'winch.sim.allow_outside_simulation = true; on the boat set winch.backend = "gpio"'
+        'winch.sim.allow_outside_simulation = true; on the boat set winch.backend = "gpio"; '
+        "to try cc-daemon on this computer: cc-daemon --simulate"
     )
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import functools
 import random
 import time
@@ -27,6 +28,7 @@ from typing import Any
 import serial_asyncio
 import structlog
 
+from cc_daemon.ground.portusers import port_users
 from cc_daemon.ground.waiting import WaitReport
 
 _log = structlog.get_logger("cc_daemon.link")
@@ -127,7 +129,7 @@ class SerialLink:
                 # pyserial raises SerialException, OSError, ValueError and, from
                 # termios on a failing adapter, termios.error: none may end the link.
                 failures += 1
-                error = f"{type(exc).__name__}: {exc}"
+                error = f"{type(exc).__name__}: {exc}" + _held_by(self.port, exc)
                 due = self.waiting.failed(loop.time(), time.time())
                 if error != last_error:  # say each new reason once; the retries are expected
                     _log.warning("cannot open serial port", port=self.port, error=error)
@@ -164,6 +166,8 @@ class SerialLink:
 
     def _say_waiting(self, error: str) -> None:
         text = self.waiting.message(self.port)
+        if " (held by " in error:  # a second daemon, minicom...: say who, every time
+            text += error[error.index(" (held by ") :]
         _log.warning(text, port=self.port, attempts=self.waiting.attempts, error=error)
         if self.on_waiting is None:
             return
@@ -179,3 +183,14 @@ class SerialLink:
             self.on_state(up, reason)
         except Exception:
             _log.exception("error handling link state change")
+
+
+def _held_by(port: str, exc: Exception) -> str:
+    """` (held by pid 20329 (cc-daemon))` when the port is locked by another process."""
+    if "lock" not in str(exc).lower() and getattr(exc, "errno", None) not in (
+        errno.EBUSY,
+        errno.EAGAIN,
+    ):
+        return ""
+    users = port_users(port)
+    return f" (held by {', '.join(str(u) for u in users)})" if users else ""

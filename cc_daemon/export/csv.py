@@ -39,6 +39,7 @@ FIX_COLUMNS = (
     "sonar_confidence_pct",
     "frame",
     "autopilot_timestamp_s",
+    "autopilot_byte_order",
     "clock_synced",
     "monotonic_s",
 )
@@ -91,7 +92,8 @@ def write_fixes(fixes: Iterable[FixRecord], out: TextIO) -> int:
                 f"{f.sonar_distance_m:.3f}",
                 f.sonar_confidence_pct,
                 f.frame,
-                f.ap_timestamp_s,
+                f.ap_timestamp_s if f.ap_time_s is None else f.ap_time_s,
+                f.ap_time_order or "",
                 int(f.clock_synced),
                 f"{f.mono_s:.3f}",
             )

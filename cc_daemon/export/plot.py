@@ -18,12 +18,11 @@ never reads the journal itself.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from cc_daemon.export import OptionalDependencyError
+from cc_daemon.export.mapframe import LocalFrame, figure, metric_axes, place_labels
 from cc_daemon.store.reader import CastRecord, FixRecord, SampleRecord, iso_utc
 
 PHASE_COLOURS = {
@@ -66,17 +65,6 @@ def output_format(path: Path) -> str:
     return fmt
 
 
-def _figure(width_in: float, height_in: float) -> Any:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        from matplotlib.figure import Figure
-    except ImportError as exc:
-        raise OptionalDependencyError("plotting", "matplotlib", "plot") from exc
-    return Figure(figsize=(width_in, height_in), layout="constrained")
-
-
 def _phase_spans(times: Sequence[float], phases: Sequence[str]) -> list[tuple[str, float, float]]:
     """Runs of one phase as (phase, start, end); a run ends where the next begins."""
     spans: list[tuple[str, float, float]] = []
@@ -99,7 +87,7 @@ def cast_figure(cast: CastRecord, samples: Sequence[SampleRecord]) -> Any:
     """The cast's figure (a matplotlib `Figure`), not yet written anywhere."""
     if not samples:
         raise ValueError(f"cast {cast.id} has no depth samples to plot")
-    fig = _figure(8.0, 4.5)
+    fig = figure(8.0, 4.5)
     from matplotlib.patches import Patch  # after _figure, which reports a missing matplotlib
 
     ax = fig.add_subplot()
@@ -149,35 +137,33 @@ def cast_figure(cast: CastRecord, samples: Sequence[SampleRecord]) -> Any:
 def plot_survey(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], path: Path) -> None:
     """Write a map of the track (coloured by sonar depth) and the stations to `path`."""
     fmt = output_format(path)
+    survey_figure(casts, fixes).savefig(path, dpi=DPI, format=fmt)
+
+
+def survey_figure(casts: Sequence[CastRecord], fixes: Sequence[FixRecord]) -> Any:
+    """The survey map in a local metric frame (equal aspect), each station labelled
+    where the label covers no other text."""
     if not fixes and not casts:
         raise ValueError("the journal holds no track and no cast to plot")
-    lons = [f.lon_deg for f in fixes] + [c.lon_deg for c in casts]
-    lats = [f.lat_deg for f in fixes] + [c.lat_deg for c in casts]
-    # Same ground distance per unit on both axes: a degree of longitude
-    # shrinks with the cosine of the latitude.
-    aspect = 1.0 / max(math.cos(math.radians(sum(lats) / len(lats))), 0.01)
-    width_m = max(max(lons) - min(lons), 1e-6) / aspect
-    height_m = max(max(lats) - min(lats), 1e-6)
-    fig = _figure(9.0, min(max(7.0 * height_m / width_m, 4.0), 11.0) + 1.5)
-    from matplotlib.ticker import MaxNLocator  # after _figure, which reports a missing matplotlib
-
+    frame = LocalFrame.around(
+        [f.lat_deg for f in fixes] + [c.lat_deg for c in casts],
+        [f.lon_deg for f in fixes] + [c.lon_deg for c in casts],
+    )
+    track_x, track_y = frame.xy([f.lat_deg for f in fixes], [f.lon_deg for f in fixes])
+    station_x, station_y = frame.xy([c.lat_deg for c in casts], [c.lon_deg for c in casts])
+    width_m = max(*(track_x + station_x), 1.0)
+    height_m = max(*(track_y + station_y), 1.0)
+    fig = figure(9.0, min(max(7.0 * height_m / width_m, 4.0), 11.0) + 1.5)
     ax = fig.add_subplot()
     if fixes:
-        ax.plot(
-            [f.lon_deg for f in fixes],
-            [f.lat_deg for f in fixes],
-            color="0.6",
-            lw=0.8,
-            zorder=1,
-            label="track",
-        )
+        ax.plot(track_x, track_y, color="0.6", lw=0.8, zorder=1, label="track")
         # A zero-confidence reading is no reading: grey track only, no colour.
-        sounded = [f for f in fixes if f.sonar_confidence_pct > 0]
+        sounded = [i for i, f in enumerate(fixes) if f.sonar_confidence_pct > 0]
         if sounded:
             points = ax.scatter(
-                [f.lon_deg for f in sounded],
-                [f.lat_deg for f in sounded],
-                c=[f.sonar_distance_m for f in sounded],
+                [track_x[i] for i in sounded],
+                [track_y[i] for i in sounded],
+                c=[fixes[i].sonar_distance_m for i in sounded],
                 cmap="viridis_r",
                 s=20,
                 lw=0,
@@ -185,30 +171,17 @@ def plot_survey(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], path: P
             )
             fig.colorbar(points, ax=ax, label="water depth from the sonar (m)", shrink=0.8)
     for outcome, (label, style) in _STATIONS.items():
-        these = [c for c in casts if (c.outcome or "running") == outcome]
+        these = [i for i, c in enumerate(casts) if (c.outcome or "running") == outcome]
         if these:
             ax.scatter(
-                [c.lon_deg for c in these],
-                [c.lat_deg for c in these],
+                [station_x[i] for i in these],
+                [station_y[i] for i in these],
                 s=70,
                 zorder=3,
                 label=f"station, {label}",
                 **style,
             )
-    for c in casts:
-        ax.annotate(
-            _station_label(c),
-            (c.lon_deg, c.lat_deg),
-            xytext=(6, 4),
-            textcoords="offset points",
-            fontsize="x-small",
-            zorder=4,
-        )
-    ax.set_aspect(aspect)
-    ax.xaxis.set_major_locator(MaxNLocator(5))
-    ax.ticklabel_format(useOffset=False, style="plain")
-    ax.set_xlabel("longitude (°E)")
-    ax.set_ylabel("latitude (°N)")
+    metric_axes(ax, frame)
     times = [f.wall_s for f in fixes] + [c.start_wall_s for c in casts]
     times += [c.end_wall_s for c in casts if c.end_wall_s is not None]
     ax.set_title(
@@ -217,7 +190,14 @@ def plot_survey(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], path: P
     ax.grid(True, alpha=0.3)
     # Below the axis label, not on it: constrained layout makes room for it.
     fig.legend(loc="outside lower center", ncols=2, fontsize="small")
-    fig.savefig(path, dpi=DPI, format=fmt)
+    place_labels(
+        fig,
+        ax,
+        list(zip(station_x, station_y, strict=True)),
+        [_station_label(c) for c in casts],
+        fontsize="x-small",
+    )
+    return fig
 
 
 def _station_label(cast: CastRecord) -> str:

@@ -19,23 +19,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from cc_daemon.export import OptionalDependencyError
+from cc_daemon.export.mapframe import LocalFrame, figure, metric_axes, place_labels
 from cc_daemon.export.sonde import Column
 from cc_daemon.store.reader import CastRecord, iso_utc
 from cc_daemon.store.sonde import SondeSampleRecord
 
 DPI = 120
-
-
-def _figure(width_in: float, height_in: float) -> Any:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        from matplotlib.figure import Figure
-    except ImportError as exc:
-        raise OptionalDependencyError("plotting", "matplotlib", "plot") from exc
-    return Figure(figsize=(width_in, height_in), layout="constrained")
 
 
 _STYLES = {
@@ -64,7 +53,7 @@ def plot_profiles(
         raise ValueError(f"cast {cast.id} has no sonde readings to plot")
     ncols = min(3, len(panels))
     nrows = math.ceil(len(panels) / ncols)
-    fig = _figure(3.2 * ncols, 3.6 * nrows)
+    fig = figure(3.2 * ncols, 3.6 * nrows)
     axes = fig.subplots(nrows, ncols, sharey=True, squeeze=False)
     deepest = max(_depth(s) or 0.0 for s in readings)
     for index, column in enumerate(panels):
@@ -142,6 +131,21 @@ def plot_map(
     within_m: float = 0.5,
 ) -> int:
     """A map of the stations coloured by `name` at `depth_m`; returns the stations coloured."""
+    fig, count = map_figure(casts, samples, columns, name, depth_m, within_m=within_m)
+    fig.savefig(str(path), dpi=DPI)
+    return count
+
+
+def map_figure(
+    casts: Sequence[CastRecord],
+    samples: Sequence[SondeSampleRecord],
+    columns: Sequence[Column],
+    name: str,
+    depth_m: float,
+    *,
+    within_m: float = 0.5,
+) -> tuple[Any, int]:
+    """The map of `plot_map`, in a local metric frame, and the stations coloured."""
     column = _column(columns, name)
     found: list[tuple[CastRecord, float]] = []
     empty: list[tuple[CastRecord, None]] = []
@@ -153,38 +157,31 @@ def plot_map(
             found.append((cast, value))
     if not found:
         raise ValueError(f"no {name} reading within {within_m:g} m of {depth_m:g} m")
-    fig = _figure(7.0, 6.0)
+    stations = [c for c, _ in found] + [c for c, _ in empty]
+    frame = LocalFrame.around([c.lat_deg for c in stations], [c.lon_deg for c in stations])
+    fig = figure(7.0, 6.0)
     ax = fig.add_subplot()
-    scatter = ax.scatter(
-        [c.lon_deg for c, _ in found],
-        [c.lat_deg for c, _ in found],
-        c=[v for _, v in found],
-        cmap="viridis",
-        s=80,
-        edgecolors="black",
-    )
+    xs, ys = frame.xy([c.lat_deg for c, _ in found], [c.lon_deg for c, _ in found])
+    scatter = ax.scatter(xs, ys, c=[v for _, v in found], cmap="viridis", s=80, edgecolors="black")
     fig.colorbar(scatter, ax=ax, label=_label(column))
     if empty:
+        ex, ey = frame.xy([c.lat_deg for c, _ in empty], [c.lon_deg for c, _ in empty])
         ax.scatter(
-            [c.lon_deg for c, _ in empty],
-            [c.lat_deg for c, _ in empty],
+            ex,
+            ey,
             s=60,
             facecolors="none",
             edgecolors="grey",
             label=f"no reading near {depth_m:g} m",
         )
         ax.legend(fontsize=8)
-    for cast in [c for c, _ in found] + [c for c, _ in empty]:
-        ax.annotate(str(cast.id), (cast.lon_deg, cast.lat_deg), fontsize=7,
-                    xytext=(4, 4), textcoords="offset points")  # fmt: skip
-    ax.set_xlabel("longitude [degrees east]")
-    ax.set_ylabel("latitude [degrees north]")
-    ax.set_aspect(1 / math.cos(math.radians(found[0][0].lat_deg)))
+    metric_axes(ax, frame)
     simulated = " - SIMULATED" if any(s.simulated for s in samples) else ""
     ax.set_title(f"{column.name} at {depth_m:g} m (within {within_m:g} m){simulated}")
     ax.grid(True, alpha=0.3)
-    fig.savefig(str(path), dpi=DPI)
-    return len(found)
+    sx, sy = frame.xy([c.lat_deg for c in stations], [c.lon_deg for c in stations])
+    place_labels(fig, ax, list(zip(sx, sy, strict=True)), [str(c.id) for c in stations], fontsize=7)
+    return fig, len(found)
 
 
 def along_track_m(casts: Sequence[CastRecord]) -> list[float]:
@@ -221,7 +218,7 @@ def plot_section(
     ]
     if not points:
         raise ValueError(f"no {name} readings to draw")
-    fig = _figure(9.0, 4.5)
+    fig = figure(9.0, 4.5)
     ax = fig.add_subplot()
     scatter = ax.scatter(
         [p[0] for p in points], [p[1] for p in points], c=[p[2] for p in points],

@@ -183,8 +183,12 @@ async def run_simulation(options: SimOptions) -> int:
                 reset_logging()
         casts: list[JournalCast] | None = None
         try:
-            casts = journal_casts(db_path, mission, run.wall0 - 1.0)
-            notes.extend(sondesummary.sonde_lines(db_path, run.wall0 - 1.0))
+            # This run's session only: a second simulation may share the file.
+            survey = daemon.journal.session_id if daemon.journal is not None else None
+            if survey is None:
+                raise StoreError("the daemon never opened its journal")
+            casts = journal_casts(db_path, mission, survey)
+            notes.extend(sondesummary.sonde_lines(db_path, survey))
         except StoreError as exc:
             notes.append(f"could not read the journal: {exc}")
         summary = build_summary(

@@ -3,7 +3,10 @@
 This module owns that command: a mission's water under a boat holding still
 at its first station (or drifting along its first transit with `--under-way`),
 heard by the simulated Ping1D, served on PATH at 115200 8N1 until Ctrl-C or
-SIGTERM. It prints one line when it is ready and one summary line at the end.
+SIGTERM: a serial port that exists is opened; where PATH does not exist (or is
+a dangling symlink) a pseudo-terminal is created with PATH pointing at it, as
+`simulate-sonde` does, for a daemon's `sonar.port` or brping's
+`--device`. It prints one line when it is ready and one summary line at the end.
 It never opens anything but PATH.
 """
 
@@ -15,9 +18,11 @@ import contextlib
 import signal
 import sys
 import time
+from pathlib import Path
 
 from cc_daemon.sim.mission import Mission, Point, make_mission
 from cc_daemon.sim.ping1d import FieldSounder, Ping1DDevice, Ping1DServer
+from cc_daemon.sim.pty import PtyPair
 
 EXIT_USAGE = 2
 _DRIFT_M_S = 1.5
@@ -33,7 +38,11 @@ def add_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
         "continuous_start and continuous_stop. Its readings come from a simulated mission's "
         "water depth. Stop it with Ctrl-C.",
     )
-    p.add_argument("--port", required=True, help="serial device or pty, e.g. /dev/ttyUSB1")
+    p.add_argument(
+        "--port",
+        required=True,
+        help="serial device, e.g. /dev/ttyUSB1; a path that does not exist becomes a pty symlink",
+    )
     p.add_argument("--seed", type=int, default=1, help="mission and noise seed (1)")
     p.add_argument("--station", type=int, default=1, help="hold at this station (1)")
     p.add_argument(
@@ -64,7 +73,16 @@ async def serve(port: str, mission: Mission, *, under_way: bool = False, seed: i
         return begin.towards(station, (time.monotonic() - started) * _DRIFT_M_S), True
 
     sounder = FieldSounder(mission, where, seed=seed)
-    server = await Ping1DServer.over_serial(port, Ping1DDevice(sounder))
+    pair = _pty_unless_present(Path(port))
+    try:
+        if pair is None:
+            server = await Ping1DServer.over_serial(port, Ping1DDevice(sounder))
+        else:
+            server = await Ping1DServer.over_fd(pair.master_fd, Ping1DDevice(sounder))
+    except BaseException:
+        if pair is not None:
+            pair.close()
+        raise
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -80,6 +98,8 @@ async def serve(port: str, mission: Mission, *, under_way: bool = False, seed: i
             with contextlib.suppress(Exception):
                 loop.remove_signal_handler(signum)
         await server.close()
+        if pair is not None:
+            pair.close()
     device = server.device
     print(
         f"simulated Ping1D stopped: {len(device.requests)} requests, "
@@ -87,3 +107,9 @@ async def serve(port: str, mission: Mission, *, under_way: bool = False, seed: i
         flush=True,
     )
     return 0
+
+
+def _pty_unless_present(path: Path) -> PtyPair | None:
+    """A pty with `path` pointing at it, unless a device is there (a dangling link is
+    replaced)."""
+    return None if path.exists() else PtyPair(path)

@@ -27,14 +27,15 @@ def _values(reading: SondeSampleRecord, units: dict[str, str], depth_name: str) 
     return ", ".join(parts)
 
 
-def sonde_lines(db: Path, since_wall_s: float) -> list[str]:
-    """One line per cast of this run that has sonde readings; none without readings."""
-    with JournalReader(db) as reader:
-        samples = reader.sonde_samples(since=since_wall_s)
+def sonde_lines(db: Path, survey: int | None) -> list[str]:
+    """One line per cast of this run (its session) that has sonde readings; none
+    without readings."""
+    with JournalReader(db, survey=survey) as reader:
+        samples = reader.sonde_samples()
         if not samples:
             return []
-        units = {c.name: c.unit for c in parameter_map(reader.events(since=since_wall_s))}
-        casts = reader.casts(since=since_wall_s)
+        units = {c.name: c.unit for c in parameter_map(reader.events())}
+        casts = reader.casts()
     lines = []
     for cast in casts:
         mine = [s for s in samples if s.cast_id == cast.id]

@@ -68,13 +68,14 @@ class JournalCast:
     cast_id: int | None = None
 
 
-def journal_casts(db: Path, mission: Mission, since_wall_s: float) -> list[JournalCast]:
-    """This run's casts in the journal, each matched to its station by position."""
+def journal_casts(db: Path, mission: Mission, survey: int | None) -> list[JournalCast]:
+    """This run's casts in the journal (its session's: another run writing the same file
+    at the same time is not this one), each matched to its station by position."""
     from cc_daemon.store import JournalReader
 
     found: list[JournalCast] = []
-    with JournalReader(db) as reader:
-        for record in reader.casts(since=since_wall_s):
+    with JournalReader(db, survey=survey) as reader:
+        for record in reader.casts():
             here = _local(record.lat_deg, record.lon_deg)
             nearest = min(mission.stations, key=lambda s: s.point.distance_to(here))
             if nearest.point.distance_to(here) <= _MATCH_RADIUS_M:

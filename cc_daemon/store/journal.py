@@ -162,6 +162,11 @@ class Journal(BufferedWriter):
         # recorded with: written again if the run moves to a fresh file.
         self._unended: dict[int, Row] = {}
 
+    @property
+    def session_id(self) -> int | None:
+        """This run's session (its survey's number), once the file has been opened."""
+        return self._session_id
+
     def health(self) -> JournalHealth:
         with self._lock:  # pending and written from the same instant
             pending = self._pending_locked()

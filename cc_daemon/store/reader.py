@@ -31,6 +31,7 @@ from typing import Any, NamedTuple
 
 from cc_daemon.store import schema, sonde
 from cc_daemon.store.schema import StoreError
+from cc_daemon.store.surveys import ALL, LATEST, SurveyRecord, list_surveys
 
 # SQLite's primary result codes for "may not write here" and "cannot open".
 _SQLITE_READONLY = 8
@@ -88,6 +89,10 @@ class FixRecord(NamedTuple):
     alt_m: float
     sonar_distance_m: float
     sonar_confidence_pct: int
+    # The autopilot's clock, decoded in the byte order its session settled on (the
+    # first frames re-decoded once the order was learnt); None before journal v6.
+    ap_time_s: int | None = None
+    ap_time_order: str | None = None
 
 
 class EventRecord(NamedTuple):
@@ -126,7 +131,7 @@ _CAST_COLUMNS = (
 )
 _FIX_COLUMNS = (
     "session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s, lat_e7, lon_e7, alt_mm,"
-    " sonar_distance_mm, sonar_confidence_pct"
+    " sonar_distance_mm, sonar_confidence_pct, ap_time_s, ap_time_order"
 )
 
 
@@ -161,7 +166,17 @@ def _cast(row: tuple[Any, ...]) -> CastRecord:
     )
 
 
-def _fix(row: tuple[Any, ...]) -> FixRecord:
+def _decoded(raw: int, order: str | None, stored: int | None) -> int | None:
+    """The timestamp's two bytes (stored read big-endian) in the session's byte order."""
+    if order == "little":
+        return ((raw & 0xFF) << 8) | (raw >> 8)
+    if order == "big":
+        return raw
+    return stored
+
+
+def _fix(row: tuple[Any, ...], orders: dict[int | None, str]) -> FixRecord:
+    order = orders.get(row[0], row[12])
     return FixRecord(
         session_id=row[0],
         mono_s=row[1],
@@ -174,14 +189,18 @@ def _fix(row: tuple[Any, ...]) -> FixRecord:
         alt_m=row[8] / 1000.0,
         sonar_distance_m=row[9] / 1000.0,
         sonar_confidence_pct=row[10],
+        ap_time_s=_decoded(row[5], order, row[11]),
+        ap_time_order=order,
     )
 
 
 class JournalReader:
     """A read-only, consistent view of one journal file. Use as a context manager."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, survey: int | None = None) -> None:
+        """`survey`: read only that survey's rows (a session's id; None: every row)."""
         self.path = Path(path)
+        self.survey = survey
         if not self.path.is_file():
             raise StoreError(f"no journal at {self.path}")
         self._private: tempfile.TemporaryDirectory[str] | None = None
@@ -278,7 +297,9 @@ class JournalReader:
 
     def casts(self, *, cast_id: int | None = None, since: float | None = None) -> list[CastRecord]:
         """Casts by id; `since` keeps those started at or after that Unix time."""
-        where, params = self._filters(("id", cast_id), ("start_wall_s >=", since))
+        where, params = self._filters(
+            ("id", cast_id), ("start_wall_s >=", since), ("session_id", self.survey)
+        )
         rows = self._conn.execute(f"SELECT {_CAST_COLUMNS} FROM casts{where} ORDER BY id", params)
         return [_cast(row) for row in rows]
 
@@ -286,7 +307,9 @@ class JournalReader:
         self, *, cast_id: int | None = None, since: float | None = None
     ) -> list[SampleRecord]:
         """Samples by cast, in time order, with their station's position."""
-        where, params = self._filters(("s.cast_id", cast_id), ("s.wall_s >=", since))
+        where, params = self._filters(
+            ("s.cast_id", cast_id), ("s.wall_s >=", since), ("c.session_id", self.survey)
+        )
         rows = self._conn.execute(
             "SELECT s.cast_id, s.mono_s, s.wall_s, s.clock_synced, s.depth_m, s.phase,"
             f" c.lat_e7, c.lon_e7 FROM samples s LEFT JOIN casts c ON c.id = s.cast_id{where}"
@@ -327,12 +350,25 @@ class JournalReader:
         if since is not None:
             clauses.append("wall_s >= ?")
             params.append(since)
+        if self.survey is not None:
+            clauses.append("session_id = ?")
+            params.append(self.survey)
         where = f" WHERE {' AND '.join(clauses)}" if clauses else ""
         rows = self._conn.execute(f"SELECT {_FIX_COLUMNS} FROM fixes{where} ORDER BY id", params)
-        return [_fix(row) for row in rows]
+        orders = self._session_orders()
+        return [_fix(row, orders) for row in rows]
+
+    def _session_orders(self) -> dict[int | None, str]:
+        """Each session's last byte order: "big" until the daemon learnt the order, then
+        the one it learnt, so the frames before that are re-decoded with it."""
+        rows = self._conn.execute(
+            "SELECT session_id, ap_time_order, max(id) FROM fixes"
+            " WHERE ap_time_order IS NOT NULL AND session_id IS NOT NULL GROUP BY session_id"
+        )
+        return {session: order for session, order, _ in rows}
 
     def events(self, *, since: float | None = None) -> list[EventRecord]:
-        where, params = self._filters(("wall_s >=", since))
+        where, params = self._filters(("wall_s >=", since), ("session_id", self.survey))
         rows = self._conn.execute(
             "SELECT session_id, mono_s, wall_s, clock_synced, kind, detail_json"
             f" FROM events{where} ORDER BY id",
@@ -351,7 +387,32 @@ class JournalReader:
         self, *, cast_id: int | None = None, since: float | None = None
     ) -> list[sonde.SondeSampleRecord]:
         """The sonde's readings in time order (`store.sonde`)."""
-        return sonde.read_samples(self._conn, cast_id=cast_id, since=since)
+        return sonde.read_samples(self._conn, cast_id=cast_id, since=since, session=self.survey)
+
+    def surveys(self) -> list[SurveyRecord]:
+        """Every survey in the file (`store.surveys`), whatever `survey` is set to."""
+        return list_surveys(self._conn)
+
+    def select_survey(self, choice: str | int) -> SurveyRecord | None:
+        """Read only the survey `choice` names (`latest`, a number, or `all`: None).
+        StoreError if there is no such survey."""
+        surveys = self.surveys()
+        if choice == ALL:
+            self.survey = None
+            return None
+        if choice == LATEST:
+            if not surveys:
+                self.survey = None
+                return None
+            chosen = surveys[-1]
+        else:
+            found = [s for s in surveys if s.id == choice]
+            if not found:
+                known = ", ".join(str(s.id) for s in surveys) or "none"
+                raise StoreError(f"no survey {choice} in {self.path} (surveys: {known})")
+            chosen = found[0]
+        self.survey = chosen.id
+        return chosen
 
     def _cast_end(self, cast: CastRecord) -> tuple[float, float]:
         """When a cast's data ends: its end row, else its last sample, else its start."""

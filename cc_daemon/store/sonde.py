@@ -122,9 +122,14 @@ def build_row(
 
 
 def read_samples(
-    conn: sqlite3.Connection, *, cast_id: int | None = None, since: float | None = None
+    conn: sqlite3.Connection,
+    *,
+    cast_id: int | None = None,
+    since: float | None = None,
+    session: int | None = None,
 ) -> list[SondeSampleRecord]:
-    """Readings in time order; none if the file predates the table."""
+    """Readings in time order (of one session, if given); none if the file predates
+    the table."""
     present = conn.execute(
         "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'sonde_samples'"
     ).fetchone()
@@ -138,6 +143,9 @@ def read_samples(
     if since is not None:
         clauses.append("wall_s >= ?")
         params.append(since)
+    if session is not None:
+        clauses.append("session_id = ?")
+        params.append(session)
     where = f" WHERE {' AND '.join(clauses)}" if clauses else ""
     rows = conn.execute(
         f"SELECT {', '.join(COLUMNS)} FROM sonde_samples{where} ORDER BY mono_s, id", params

@@ -10,31 +10,22 @@ import os
 import re
 import stat
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
+from cc_daemon.cli.doctor.software import check_software
 from cc_daemon.cli.doctor.system import Identity, System, describe_owner, may, resolve
+from cc_daemon.cli.doctor.verdict import Check, Level
 from cc_daemon.cli.status.client import StatusUnavailable, read_status
 from cc_daemon.config import Settings, load_settings
 from cc_daemon.config.statuspaths import SERVICE_SOCKET
 from cc_daemon.core.errors import ConfigError
 
-Level = Literal["OK", "WARN", "FAIL"]
 CONFIG_PATH = "/etc/cc-daemon/cc-daemon.toml"
 STATE_DIR = "/var/lib/cc-daemon"
 # A day of survey journal measured at 6.8 MB (README, "a day of data"); rounded up.
 JOURNAL_BYTES_PER_DAY = 7_000_000
 READ, WRITE = 4, 2
 UART_NAMES = re.compile(r"^(serial\d|ttyS\d+|ttyAMA\d+)$")
-
-
-@dataclass(frozen=True, slots=True)
-class Check:
-    name: str
-    level: Level
-    detail: str
-    fix: str = ""
 
 
 def load_config(system: System, config: Path | None) -> tuple[Check, Settings | None]:
@@ -289,6 +280,7 @@ def run_checks(system: System, config: Path | None = None) -> list[Check]:
     results.append(user)
     results += check_serial(system, settings, who)
     results += check_gpio(system, settings, who)
+    results += check_software(settings, system.installed)
     results += check_journal(system, settings, who)
     results.append(check_clock(system))
     results += check_service(system, settings)

@@ -7,8 +7,9 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from cc_daemon.cli.doctor.checks import Check, run_checks
+from cc_daemon.cli.doctor.checks import run_checks
 from cc_daemon.cli.doctor.system import System
+from cc_daemon.cli.doctor.verdict import Check
 
 EXIT_FAIL = 1
 

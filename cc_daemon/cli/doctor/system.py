@@ -46,6 +46,15 @@ class Identity:
     gids: frozenset[int]
 
 
+def _find_spec(module: str) -> bool:
+    from importlib.util import find_spec
+
+    try:
+        return find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
 @dataclass
 class System:
     """What the checks read. Tests give a fake root and fake kernel answers."""
@@ -54,6 +63,8 @@ class System:
     statvfs: Callable[[str], os.statvfs_result] = os.statvfs
     clock: Callable[[], ClockSync] = clock_sync
     service_state: Callable[[], str | None] | None = None
+    # Whether a library is installed where the doctor runs (tests plant missing ones).
+    installed: Callable[[str], bool] = field(default=_find_spec)
     _unit: dict[str, str] = field(default_factory=dict)
 
     def path(self, path: str | Path) -> Path:

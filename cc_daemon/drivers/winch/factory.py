@@ -94,15 +94,29 @@ def _make_gpio(
     return gpio
 
 
+LGPIO_MISSING = (
+    "cannot drive the GPIO winch: the lgpio library is missing "
+    "(sudo make install installs it for a GPIO configuration; in a venv: "
+    "pip install 'cc-daemon[pi]')"
+)
+
+
+def check_pin_library(settings: Settings) -> None:
+    """WinchFault now if the configured winch needs lgpio and it is not installed:
+    checked before anything is created (the journal) or opened, without importing it."""
+    from importlib.util import find_spec
+
+    native = settings.winch.backend == "gpio" and settings.winch.gpio.pin_factory == "native"
+    if native and find_spec("lgpio") is None:
+        raise WinchFault(LGPIO_MISSING)
+
+
 def native_pin_factory() -> Any:
     """gpiozero's lgpio factory (Raspberry Pi OS Bookworm, Pi 4 and Pi 5), never set globally."""
     try:
         from gpiozero.pins.lgpio import LGPIOFactory
     except ImportError as exc:
-        raise WinchFault(
-            "cannot drive the GPIO winch: the lgpio library is missing "
-            "(on the Pi: sudo apt install python3-lgpio, or pip install 'cc-daemon[pi]')"
-        ) from exc
+        raise WinchFault(LGPIO_MISSING) from exc
     try:
         return LGPIOFactory()
     except Exception as exc:
