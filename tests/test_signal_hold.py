@@ -223,3 +223,11 @@ def test_from_another_thread_nothing_is_held(restored: None) -> None:
     assert signal.getsignal(signal.SIGTERM) is before
     held.release()  # nothing to give back, nothing raised
     assert held.pending == {}
+
+
+def test_ctrl_c_during_help_is_no_traceback(restored: None) -> None:
+    held = SignalHold.hold()
+    signal.raise_signal(signal.SIGINT)
+    with pytest.raises(SystemExit):  # --version's own exit, not a KeyboardInterrupt
+        main(["--version"], held=held)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import os
 import sys
 from collections.abc import Callable, Iterable, Sequence
@@ -298,4 +299,5 @@ def main(argv: Sequence[str] | None = None, *, held: SignalHold | None = None) -
         return 130
     finally:
         if not daemon_mode:  # --help, a usage error: the handlers go back all the same
-            held.release()
+            with contextlib.suppress(KeyboardInterrupt):  # a Ctrl-C held meanwhile
+                held.release()
