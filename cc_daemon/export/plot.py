@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from cc_daemon.core.cast.bottom import distrust
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store.reader import CastRecord, FixRecord, SampleRecord, iso_utc
 
@@ -120,7 +121,7 @@ def cast_figure(cast: CastRecord, samples: Sequence[SampleRecord]) -> Any:
         ax.axhline(cast.planned_depth_m, color="tab:blue", ls="--", lw=1, label="planned depth")
     )
     deepest = max([*depths, cast.planned_depth_m])
-    if cast.sonar_confidence_pct > 0:
+    if _sounded(cast.water_depth_m, cast.sonar_confidence_pct):
         handles.append(
             ax.axhline(
                 cast.water_depth_m,
@@ -171,8 +172,9 @@ def plot_survey(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], path: P
             zorder=1,
             label="track",
         )
-        # A zero-confidence reading is no reading: grey track only, no colour.
-        sounded = [f for f in fixes if f.sonar_confidence_pct > 0]
+        # A zero-confidence reading is no reading, nor is a sentinel distance:
+        # grey track only, no colour.
+        sounded = [f for f in fixes if _sounded(f.sonar_distance_m, f.sonar_confidence_pct)]
         if sounded:
             points = ax.scatter(
                 [f.lon_deg for f in sounded],
@@ -218,6 +220,12 @@ def plot_survey(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], path: P
     # Below the axis label, not on it: constrained layout makes room for it.
     fig.legend(loc="outside lower center", ncols=2, fontsize="small")
     fig.savefig(path, dpi=DPI, format=fmt)
+
+
+def _sounded(distance_m: float, confidence_pct: int) -> bool:
+    """A sonar reading worth drawing: some confidence (at most 100 %), and a distance
+    that can be a bottom (not 0, not a sentinel such as 4294967295 mm)."""
+    return distrust(round(distance_m * 1000), confidence_pct, min_confidence=1) is None
 
 
 def _station_label(cast: CastRecord) -> str:
