@@ -228,18 +228,18 @@ async def test_sighup_in_the_first_second_waits_for_the_loop_then_reloads(
 
 
 async def test_sigquit_mid_cast_is_a_clean_stop(make_daemon: MakeDaemon) -> None:
-    daemon = make_daemon(FIVE_METRES)
+    daemon = make_daemon()  # 3 m at 1 m/s
     port = await daemon.start_and_connect()
     await port.send(station())
     await daemon.expect(Ack, 2)
-    await asyncio.sleep(2.0)
+    await asyncio.sleep(1.5)
     daemon.send_signal(signal.SIGQUIT)
     await asyncio.sleep(0.2)
     daemon.send_signal(signal.SIGQUIT)  # a repeat changes nothing
     finished = await daemon.expect(Finished, 15)
     assert finished is not None and finished.message.depth_mm == 0  # type: ignore[union-attr]
     assert await daemon.wait_exit() == 0
-    assert casts(daemon) == [(1, "aborted", 5.0)]
+    assert casts(daemon) == [(1, "aborted", 3.0)]
     assert (
         logged(daemon, "signal received: bringing the probe home, then exiting")[0]["signal"]
         == "SIGQUIT"
@@ -250,7 +250,7 @@ NEVER_FATAL = (signal.SIGUSR2, *IGNORED, signal.SIGUSR1)
 
 
 async def test_no_other_signal_ends_the_daemon_idle_or_mid_cast(make_daemon: MakeDaemon) -> None:
-    daemon = make_daemon(FIVE_METRES)
+    daemon = make_daemon()  # 3 m at 1 m/s
     port = await daemon.start_and_connect()
     for signum in NEVER_FATAL:  # idle: each of these ended the daemon by default
         daemon.send_signal(signum)
@@ -263,7 +263,7 @@ async def test_no_other_signal_ends_the_daemon_idle_or_mid_cast(make_daemon: Mak
     assert "no cast, probe at 0.00 m" in str(idle["summary"])
     await port.send(station())
     await daemon.expect(Ack, 2)
-    await asyncio.sleep(2.0)
+    await asyncio.sleep(1.0)
     for signum in NEVER_FATAL:  # mid-cast: the cast goes on to its end
         daemon.send_signal(signum)
     finished = await daemon.expect(Finished, 15)
@@ -271,8 +271,8 @@ async def test_no_other_signal_ends_the_daemon_idle_or_mid_cast(make_daemon: Mak
     daemon.check_alive()
     daemon.send_signal(signal.SIGTERM)
     assert await daemon.wait_exit() == 0
-    assert casts(daemon) == [(1, "completed", 5.0)]
+    assert casts(daemon) == [(1, "completed", 3.0)]
     _, cast_line = (str(e["summary"]) for e in logged(daemon, "status (SIGUSR1)"))
     assert "link up on" in cast_line and "cast 1 descending at" in cast_line, cast_line
-    assert "of 5.00 m; winch sim moving, not home, no fault; journal writable" in cast_line
+    assert "of 3.00 m; winch sim moving, not home, no fault; journal writable" in cast_line
     assert len(logged(daemon, "SIGUSR2 received: it has no action (docs/signals.md)")) == 2
