@@ -1,5 +1,20 @@
-"""`python -m cc_daemon` runs the command-line interface."""
+"""`python -m cc_daemon` and the `cc-daemon` script: hold the signals, then the command line.
 
-from cc_daemon.cli.app import main
+The signals come first, before anything heavy is imported (argparse, asyncio,
+pydantic, structlog): a SIGHUP or SIGTERM in the daemon's first second must not
+end it (`cc_daemon.ground.signals`). Only the standard library's `signal` and
+that small module are loaded before the handlers are in place.
+"""
 
-raise SystemExit(main())
+from cc_daemon.ground.signals import SignalHold
+
+
+def main() -> int:
+    held = SignalHold.hold()
+    from cc_daemon.cli.app import main as command_line
+
+    return command_line(held=held)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

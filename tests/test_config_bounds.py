@@ -86,3 +86,36 @@ def test_a_nul_character_in_a_path_is_refused_naming_the_key() -> None:
         f"serial.port = /dev/tty\0S0 (from CC_DAEMON_SERIAL__PORT): {nul}",
         f"store.path = survey\0.db (from CC_DAEMON_STORE__PATH): {nul}",
     ]
+
+
+@pytest.mark.parametrize(
+    ("toml", "expected"),
+    [
+        (
+            "[cast]\nblind_max_depth_m = 0",
+            "cast.blind_max_depth_m = 0 ({src}): must be greater than 0",
+        ),
+        (
+            "[cast]\nblind_max_depth_m = 10.5",
+            "cast.blind_max_depth_m = 10.5 ({src}): must be at most 10",
+        ),
+        (
+            "[cast]\nmin_depth_m = 1.5",
+            "cast.min_depth_m = 1.5 ({src}) and cast.blind_max_depth_m = 1.0 (default): "
+            "impossible combination: cast.min_depth_m must not be deeper than "
+            "cast.blind_max_depth_m (every blind cast would be skipped)",
+        ),
+    ],
+)
+def test_the_blind_cast_depth_is_bounded(tmp_path: Path, toml: str, expected: str) -> None:
+    config = write(tmp_path, toml + "\n")
+    assert problems(config) == [expected.format(src=f"from {config}")]
+
+
+def test_the_blind_cast_bound_itself_is_allowed(tmp_path: Path) -> None:
+    from tests.test_config import load
+
+    config = write(
+        tmp_path, "[cast]\nblind_max_depth_m = 10\nmin_depth_m = 10\ntarget_depth_m = 10\n"
+    )
+    assert load(config).cast.blind_max_depth_m == 10.0

@@ -98,6 +98,28 @@ def test_casts_since_and_running_casts(tmp_path: Path, capsys: pytest.CaptureFix
     assert len(capsys.readouterr().out.splitlines()) == 3  # header, one cast, footnote
 
 
+def test_casts_marks_a_blind_cast_and_shows_no_sentinel_as_water(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from cc_daemon.core.cast.plan import plan_cast
+    from tests.castkit import settings
+
+    db = tmp_path / "j.db"
+    clock = FakeClock()
+    journal = Journal(db, monotonic=clock.monotonic, wall=clock.wall)
+    journal.open()
+    station = StartMeasuring(1, -37260579, 404506308, 0, 4294967295, 100)  # no reading
+    plan = plan_cast(station, settings().cast, 20.0)
+    described = plan.describe()
+    cast = journal.start_cast(station, planned_depth_m=1.0, mode="continuous", plan=described)
+    journal.end_cast(cast, outcome="completed", reached_depth_m=1.0, reason=None)
+    journal.close()
+    assert run("casts", "--db", str(db)) == 0
+    row = capsys.readouterr().out.splitlines()[1]
+    assert row.split()[4:6] == ["-", "100"]  # not 4294967.30 m of water
+    assert row.endswith("completed [blind: sonar distance 4294967295 mm cannot be a bottom]")
+
+
 def samples_csv(text: str) -> list[dict[str, str]]:
     """The rows of a samples CSV, after its `#` provenance line."""
     assert text.startswith("# winch_backend: ")

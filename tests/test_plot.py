@@ -143,3 +143,16 @@ def test_each_station_outcome_looks_and_reads_differently(survey_db: Path) -> No
         "#2 aborted at 1.00 m"
     )
     assert _station_label(measured._replace(outcome=None, reached_depth_m=None)) == "#2 running"
+
+
+def test_a_sentinel_sonar_distance_is_no_bottom_on_the_plot(survey_db: Path) -> None:
+    from cc_daemon.export.plot import _sounded, cast_figure
+
+    with JournalReader(survey_db) as reader:
+        cast, samples = reader.casts(cast_id=2)[0], reader.samples(cast_id=2)
+    # A blind cast's M frame: 4294967295 mm at 100 % (issue 19) is no bottom to draw.
+    blind = cast._replace(water_depth_m=4294967.295, sonar_confidence_pct=100)
+    [axes] = cast_figure(blind, samples).axes
+    assert axes.get_ylim()[0] < 100  # not scaled to 4,295 km of water
+    assert not any("bottom" in str(line.get_label()) for line in axes.get_lines())
+    assert _sounded(8.219, 90) and not _sounded(0.0, 100) and not _sounded(8.2, 0)

@@ -1,8 +1,11 @@
-"""SIGHUP against the daemon as a real subprocess: never fatal, never mid-cast, a reload.
+"""Signals against the daemon as a real subprocess (docs/signals.md).
 
 The scenario of issue 9: a cast at 1 m/s to 5 m, SIGHUP 2 s in (the SSH session
 that started the daemon closing, or `systemctl reload`). The cast must finish
 and R-F arrive; the reload applies to the next cast; a bad file changes nothing.
+Issue 19: SIGQUIT a clean stop; SIGUSR1, SIGUSR2 and every other signal that
+ends a process by default never fatal, idle or mid-cast; SIGHUP and the stop
+signals from the moment the entry point runs, long before the daemon is ready.
 """
 
 from __future__ import annotations
@@ -16,13 +19,16 @@ import subprocess
 import sys
 import termios
 import threading
+import time
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 
 from cc_daemon.config import load_settings
 from cc_daemon.core.errors import ConfigError
-from cc_daemon.core.protocol import Ack, DepthReport, Finished
+from cc_daemon.core.protocol import Ack, DepthReport, Finished, ProbePosition, ProbePositionRequest
+from cc_daemon.ground.signals import HELD, IGNORED, signal_name
 from tests.daemonkit import REPO, DaemonProcess, merge, station, toml_text
 
 pytestmark = pytest.mark.slow
@@ -166,3 +172,107 @@ async def test_the_terminal_going_away_mid_cast_changes_nothing(make_daemon: Mak
     assert b"cc-daemon started" in seen
     assert casts(daemon) == [(1, "completed", 5.0)]
     assert "log_output_lost" in events(daemon)
+
+
+def caught(pid: int, signum: int) -> bool:
+    """Whether process `pid` has a handler for `signum` (the kernel's SigCgt mask)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
+    return False
+
+
+def wait_held(daemon: DaemonProcess, timeout: float = 10.0) -> None:
+    """Return the moment the daemon holds its signals: its entry point's first lines.
+    (The last of `HELD` is caught last; SIGINT is the interpreter's own from its start.)"""
+    assert daemon.proc is not None
+    deadline = time.monotonic() + timeout
+    while not caught(daemon.proc.pid, HELD[-1]):
+        assert daemon.proc.poll() is None, daemon.log_text()
+        assert time.monotonic() < deadline, "the signal was never caught"
+
+
+def logged(daemon: DaemonProcess, event: str) -> list[dict[str, object]]:
+    return [e for e in daemon.log_events() if e.get("event") == event]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGQUIT, signal.SIGINT])
+async def test_a_stop_before_ready_is_a_clean_exit_0(make_daemon: MakeDaemon, signum: int) -> None:
+    daemon = make_daemon()
+    daemon.start()
+    wait_held(daemon)  # the entry point's first lines: pydantic not yet imported
+    daemon.send_signal(signum)
+    assert await daemon.wait_exit() == 0
+    [stopped] = logged(
+        daemon, "stop requested before the daemon was ready: exiting; nothing was opened"
+    )
+    assert stopped["signals"] == [signal_name(signum)]
+    assert not daemon.db.exists()  # nothing opened: no journal, no port, the probe never moved
+
+
+async def test_sighup_in_the_first_second_waits_for_the_loop_then_reloads(
+    make_daemon: MakeDaemon,
+) -> None:
+    daemon = make_daemon()
+    daemon.start()
+    wait_held(daemon)
+    for _ in range(20):  # the SSH session closing, again and again, while it starts
+        daemon.send_signal(signal.SIGHUP)
+        await asyncio.sleep(0.005)
+    await daemon.connect()
+    await daemon.wait_answering()
+    reloads = logged(daemon, "configuration reloaded: unchanged")
+    assert 1 <= len(reloads) <= 20  # the held ones coalesced into one reload
+    daemon.send_signal(signal.SIGTERM)
+    assert await daemon.wait_exit() == 0
+
+
+async def test_sigquit_mid_cast_is_a_clean_stop(make_daemon: MakeDaemon) -> None:
+    daemon = make_daemon()  # 3 m at 1 m/s
+    port = await daemon.start_and_connect()
+    await port.send(station())
+    await daemon.expect(Ack, 2)
+    await asyncio.sleep(1.5)
+    daemon.send_signal(signal.SIGQUIT)
+    await asyncio.sleep(0.2)
+    daemon.send_signal(signal.SIGQUIT)  # a repeat changes nothing
+    finished = await daemon.expect(Finished, 15)
+    assert finished is not None and finished.message.depth_mm == 0  # type: ignore[union-attr]
+    assert await daemon.wait_exit() == 0
+    assert casts(daemon) == [(1, "aborted", 3.0)]
+    assert (
+        logged(daemon, "signal received: bringing the probe home, then exiting")[0]["signal"]
+        == "SIGQUIT"
+    )
+
+
+NEVER_FATAL = (signal.SIGUSR2, *IGNORED, signal.SIGUSR1)
+
+
+async def test_no_other_signal_ends_the_daemon_idle_or_mid_cast(make_daemon: MakeDaemon) -> None:
+    daemon = make_daemon()  # 3 m at 1 m/s
+    port = await daemon.start_and_connect()
+    for signum in NEVER_FATAL:  # idle: each of these ended the daemon by default
+        daemon.send_signal(signum)
+    await asyncio.sleep(0.3)
+    await port.send(ProbePositionRequest(5))
+    assert await daemon.expect(ProbePosition, 2) is not None
+    ignored = {e["signal"] for e in logged(daemon, "signal ignored: it never stops the daemon")}
+    assert ignored == {signal_name(s) for s in IGNORED}
+    [idle] = logged(daemon, "status (SIGUSR1)")
+    assert "no cast, probe at 0.00 m" in str(idle["summary"])
+    await port.send(station())
+    await daemon.expect(Ack, 2)
+    await asyncio.sleep(1.0)
+    for signum in NEVER_FATAL:  # mid-cast: the cast goes on to its end
+        daemon.send_signal(signum)
+    finished = await daemon.expect(Finished, 15)
+    assert finished is not None and finished.message.depth_mm == 0  # type: ignore[union-attr]
+    daemon.check_alive()
+    daemon.send_signal(signal.SIGTERM)
+    assert await daemon.wait_exit() == 0
+    assert casts(daemon) == [(1, "completed", 3.0)]
+    _, cast_line = (str(e["summary"]) for e in logged(daemon, "status (SIGUSR1)"))
+    assert "link up on" in cast_line and "cast 1 descending at" in cast_line, cast_line
+    assert "of 3.00 m; winch sim moving, not home, no fault; journal writable" in cast_line
+    assert len(logged(daemon, "SIGUSR2 received: it has no action (docs/signals.md)")) == 2

@@ -71,8 +71,9 @@ def test_descending_normally_is_no_contact() -> None:
 
 
 def drive_with_sonde(bottom_m: float, target_m: float) -> tuple[CastMachine, Run, list[object]]:
-    s = settings(target_depth_m=target_m, bottom_dwell_s=5.0)
-    plan = plan_for(station(confidence=0), s)  # no sonar: the sonde is the only guard
+    # No sonar: the sonde is the only guard; a blind cast allowed as deep as the target.
+    s = settings(target_depth_m=target_m, bottom_dwell_s=5.0, blind_max_depth_m=target_m)
+    plan = plan_for(station(confidence=0), s)
     physics = LinePhysics(speed_m_s=0.25, max_line_m=20.0)
     model = SondeModel(WaterColumn(bottom_m=bottom_m), slant_deg=0.0, rng=random.Random(1))
     m = monitor()

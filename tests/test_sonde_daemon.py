@@ -126,7 +126,8 @@ async def test_unplugged_sonde_during_a_cast(make_rig: Any) -> None:
 async def test_bottom_contact_stops_the_descent(make_rig: Any) -> None:
     model = SondeModel(WaterColumn(bottom_m=1.5), slant_deg=0.0, rng=random.Random(3))
     config = {
-        "cast": {"target_depth_m": 6.0, "depth_source": "sonde"},
+        # No sonar bottom: a blind cast, allowed as deep as the target here.
+        "cast": {"target_depth_m": 6.0, "depth_source": "sonde", "blind_max_depth_m": 6.0},
         "winch": {"sim": {"speed_m_s": 0.5}},
         "sonde": {"bottom_contact_s": 1.0, "depth_disagreement_m": 0.3},
     }

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import os
-import signal
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -39,6 +39,7 @@ from cc_daemon.cli.decode import (
     read_stdin_chunks,
 )
 from cc_daemon.core.errors import ConfigError, WinchFault
+from cc_daemon.ground.signals import SignalHold
 
 EXIT_USAGE = 2
 
@@ -215,57 +216,35 @@ def _configure_daemon_logging(settings: Any) -> None:
     configure_logging(resolve_format(settings.log.format, sys.stdout), settings.log.level)
 
 
-def _run_daemon(args: argparse.Namespace) -> int:
+def _run_daemon(args: argparse.Namespace, held: SignalHold) -> int:
     from cc_daemon.daemon.preflight import check_paths, open_journal
     from cc_daemon.daemon.reload import Reloader
     from cc_daemon.daemon.service import Daemon
+    from cc_daemon.daemon.signals import stopped_before_ready
     from cc_daemon.daemon.simgate import check_backend_allowed
     from cc_daemon.drivers.winch.factory import check_pin_library
     from cc_daemon.sim.devices import SIMULATORS
 
-    # From the first moment: the SSH session that started us closing must not
-    # kill us (and a reload sent before the loop runs is simply not needed).
-    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    # `held` has caught the daemon's signals since the first instruction
+    # (cc_daemon.__main__): a SIGHUP now waits for the loop, a stop ends us cleanly.
     settings = _load(args)
     check_paths(settings)  # a port or journal path that can never work: exit 2 now
     check_backend_allowed(settings)  # a simulated winch not asked for: exit 2, nothing opened
     check_pin_library(settings)  # no lgpio for a GPIO winch: exit 1 before the journal exists
     _configure_daemon_logging(settings)
+    if held.stop_requested():  # nothing opened yet, the probe never moved
+        return stopped_before_ready(held)
     daemon = Daemon(settings, journal=open_journal(settings), simulators=SIMULATORS)
     reloader = Reloader(daemon, lambda: _load(args), _configure_daemon_logging)
-    try:
-        return asyncio.run(_serve(daemon, reloader))
-    finally:
-        # Closing the loop gave SIGHUP its default (fatal) action back.
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    return asyncio.run(_serve(daemon, held, reloader))
 
 
-async def _serve(daemon: Any, reload: Callable[[], None] | None = None) -> int:
-    import structlog
+async def _serve(daemon: Any, held: SignalHold, reload: Callable[[], None] | None = None) -> int:
+    from cc_daemon.daemon.signals import DaemonSignals
 
-    log = structlog.get_logger("cc_daemon.cli")
-    loop = asyncio.get_running_loop()
-    received: list[signal.Signals] = []
-
-    def on_signal(signum: signal.Signals) -> None:
-        received.append(signum)
-        if len(received) == 1:
-            log.info("signal received: bringing the probe home, then exiting", signal=signum.name)
-            daemon.request_shutdown()
-        elif signum is signal.SIGINT and signal.SIGINT in received[:-1]:
-            # A person pressing Ctrl-C twice means it: stop the motor, exit now.
-            log.warning("second Ctrl-C: stopping at once", signal=signum.name)
-            daemon.request_shutdown(immediate=True)
-        else:
-            # A supervisor repeating SIGTERM must not abandon the probe.
-            log.info("already shutting down; Ctrl-C twice stops at once", signal=signum.name)
-
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(signum, on_signal, signum)
-    # SIGHUP (systemctl reload, or the terminal that started us closing) re-reads
-    # the configuration; it never stops the daemon nor interrupts a cast.
-    loop.add_signal_handler(signal.SIGHUP, reload or _ignore_hangup)
-    code: int = await daemon.run()
+    # Every signal of the table (docs/signals.md), the ones held until now first.
+    with DaemonSignals(daemon, reload).delivered(held):
+        code: int = await daemon.run()
     return code
 
 
@@ -294,22 +273,24 @@ def _simulate_only_options(
     return given
 
 
-def _ignore_hangup() -> None:
-    import structlog
-
-    structlog.get_logger("cc_daemon.cli").info("SIGHUP ignored: nothing to reload")
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    words = sys.argv[1:] if argv is None else argv
-    stray = [] if args.simulate else _simulate_only_options(parser, args, words)
-    if stray:
-        print(f"cc-daemon: {', '.join(stray)} applies only with --simulate", file=sys.stderr)
-        return EXIT_USAGE
+def main(argv: Sequence[str] | None = None, *, held: SignalHold | None = None) -> int:
+    """`held`: the signals `cc_daemon.__main__` caught from the first instruction (caught
+    here when called directly). The daemon keeps them; every other command gets its
+    own handlers back, and what was held is raised again."""
+    held = held if held is not None else SignalHold.hold()
+    daemon_mode = False
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
         handler = getattr(args, "handler", None)
+        daemon_mode = handler is None and not args.simulate
+        if not daemon_mode:
+            held.release()
+        words = sys.argv[1:] if argv is None else argv
+        stray = [] if args.simulate else _simulate_only_options(parser, args, words)
+        if stray:
+            print(f"cc-daemon: {', '.join(stray)} applies only with --simulate", file=sys.stderr)
+            return EXIT_USAGE
         if handler is not None:
             code: int = handler(args)
             return code
@@ -317,7 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             from cc_daemon.sim.commands import run_from_args
 
             return run_from_args(args, _load(args))
-        return _run_daemon(args)
+        return _run_daemon(args, held)
     except ConfigError as exc:
         print(str(exc), file=sys.stderr)
         return EXIT_USAGE
@@ -326,3 +307,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+    finally:
+        if not daemon_mode:  # --help, a usage error: the handlers go back all the same
+            with contextlib.suppress(KeyboardInterrupt):  # a Ctrl-C held meanwhile
+                held.release()

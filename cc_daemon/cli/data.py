@@ -25,6 +25,7 @@ from typing import TextIO
 
 from cc_daemon.cli.surveys import add_survey_option, choose_survey, run_surveys, survey_choice
 from cc_daemon.config import load_settings
+from cc_daemon.core.cast.bottom import MAX_CONFIDENCE_PCT, MAX_SOUNDING_MM
 from cc_daemon.core.errors import ConfigError
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import JournalReader, StoreError, default_store_path
@@ -263,9 +264,16 @@ def format_casts(casts: Sequence[CastRecord]) -> str:
         outcome = c.outcome or "running"
         if c.reason:
             outcome += f" ({c.reason})"
+        if c.plan.get("blind"):  # no trusted bottom: cast blind (docs/configuration.md)
+            outcome += f" [blind: {c.plan['blind']}]"
+        # The M frame's distance as it came, unless it cannot be a distance at all.
+        impossible = (
+            c.water_depth_m * 1000 >= MAX_SOUNDING_MM or c.sonar_confidence_pct > MAX_CONFIDENCE_PCT
+        )
+        water = None if impossible else c.water_depth_m
         lines.append(
             f"{c.id:>5}  {start:<21} {c.lat_deg:>11.7f} {c.lon_deg:>12.7f}"
-            f" {_number(c.water_depth_m, 8, 2)} {c.sonar_confidence_pct:>6}"
+            f" {_number(water, 8, 2)} {c.sonar_confidence_pct:>6}"
             f" {_number(c.reached_depth_m, 9, 2)} {c.samples:>7}  {outcome}"
         )
     if any(not c.start_clock_synced for c in casts):

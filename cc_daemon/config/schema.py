@@ -234,6 +234,10 @@ class CastSettings(BaseModel):
     depth_source: Literal["winch", "sonde"] = "winch"
     rf_repeat_after_s: Annotated[float, Field(ge=0.5, le=60.0)] = 2.5
     rf_repeats: Annotated[int, Field(ge=0, le=100)] = 3
+    # With no trusted sonar bottom: cast no deeper than this, at the approach speed.
+    # At most 10 m: deeper is no longer a careful cast into unknown water (see
+    # docs/configuration.md).
+    blind_max_depth_m: Annotated[float, Field(gt=0, le=10.0)] = 1.0
 
     @model_validator(mode="after")
     def _check(self) -> CastSettings:
@@ -242,6 +246,12 @@ class CastSettings(BaseModel):
                 "{0} must not be deeper than {1} (every cast would be skipped)",
                 "min_depth_m",
                 "target_depth_m",
+            )
+        if self.min_depth_m > self.blind_max_depth_m:
+            raise _impossible(
+                "{0} must not be deeper than {1} (every blind cast would be skipped)",
+                "min_depth_m",
+                "blind_max_depth_m",
             )
         if self.soak_s > 0 and self.soak_depth_m >= self.target_depth_m:
             raise _impossible(

@@ -40,7 +40,7 @@ from cc_daemon.core.cast.stations import StationMemory
 from cc_daemon.core.cast.timestamps import AutopilotTime
 from cc_daemon.core.protocol import Finished, StartMeasuring, as_dict, encode
 from cc_daemon.core.protocol.messages import CcMessage, DepthReport
-from cc_daemon.core.winch.status import Winch, WinchStatus
+from cc_daemon.core.winch.status import ApproachSpeed, Winch, WinchStatus
 from cc_daemon.daemon.line_watch import LineWatch
 from cc_daemon.daemon.sonde import SondeDuty
 from cc_daemon.drivers.link import SerialLink
@@ -60,6 +60,7 @@ class ActiveCast:
         self.machine = machine
         self.task: asyncio.Task[None] | None = None
         self.reports = 0
+        self.told_no_approach_speed = False  # said once a cast (`CastRunner._move`)
         # Set when the cast can make no progress without an operator: the probe
         # is stranded, or the cast task failed. Shutdown stops waiting then.
         self.settled = asyncio.Event()
@@ -134,6 +135,18 @@ class CastRunner:
             water_depth_m=plan.water_depth_m,
             mode=plan.mode,
         )
+        if plan.blind is not None:
+            # No bottom to stop above: the plan says so in the cast's row, and this
+            # event makes it findable among the station's other events.
+            _log.warning(
+                "no trusted sonar bottom: casting blind",
+                cast_id=cast.cast_id,
+                reason=plan.blind,
+                max_depth_m=round(plan.depth_m, 3),
+            )
+            self._journal_event(
+                "cast_blind", cast_id=cast.cast_id, reason=plan.blind, depth_m=plan.depth_m
+            )
         assert self._tasks is not None
         cast.task = self._tasks.create_task(self._run_cast(cast), name=f"cast-{cast.cast_id}")
 
@@ -212,11 +225,10 @@ class CastRunner:
             action = queue.pop(0)
             now = self._clock.monotonic()
             match action:
-                case CommandWinch(depth_m=depth):
-                    assert self._winch is not None
+                case CommandWinch(depth_m=depth, slow=slow):
                     commanded = True
                     try:
-                        self._winch.move_to(depth)
+                        self._move(cast, depth, slow=slow)
                     except Exception as exc:
                         _log.error("winch command failed", depth_m=depth, error=str(exc))
                         queue.extend(cast.machine.winch_error(now, f"{type(exc).__name__}: {exc}"))
@@ -240,6 +252,24 @@ class CastRunner:
                         stranded_for_s=round(now - cast.machine.started_at),
                     )
         return commanded
+
+    def _move(self, cast: ActiveCast, depth_m: float, *, slow: bool) -> None:
+        """Run the winch to `depth_m`; `slow`: at its approach speed where it has one."""
+        winch = self._winch
+        assert winch is not None
+        if not slow:
+            winch.move_to(depth_m)
+        elif isinstance(winch, ApproachSpeed):
+            winch.move_slowly_to(depth_m)
+        else:
+            if not cast.told_no_approach_speed:
+                cast.told_no_approach_speed = True
+                _log.warning(
+                    "blind cast: this winch has no approach speed; paying out at its one speed",
+                    cast_id=cast.cast_id,
+                    backend=self.settings.winch.backend,
+                )
+            winch.move_to(depth_m)
 
     def bottom_contact(self, depth_m: float) -> None:
         """The sonde says the probe is on the bottom: stop paying out, go on from there."""

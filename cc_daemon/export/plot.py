@@ -22,6 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from cc_daemon.core.cast.bottom import distrust
 from cc_daemon.export.mapframe import LocalFrame, figure, metric_axes, place_labels
 from cc_daemon.store.reader import CastRecord, FixRecord, SampleRecord, iso_utc
 
@@ -108,7 +109,7 @@ def cast_figure(cast: CastRecord, samples: Sequence[SampleRecord]) -> Any:
         ax.axhline(cast.planned_depth_m, color="tab:blue", ls="--", lw=1, label="planned depth")
     )
     deepest = max([*depths, cast.planned_depth_m])
-    if cast.sonar_confidence_pct > 0:
+    if _sounded(cast.water_depth_m, cast.sonar_confidence_pct):
         handles.append(
             ax.axhline(
                 cast.water_depth_m,
@@ -157,8 +158,11 @@ def survey_figure(casts: Sequence[CastRecord], fixes: Sequence[FixRecord]) -> An
     ax = fig.add_subplot()
     if fixes:
         ax.plot(track_x, track_y, color="0.6", lw=0.8, zorder=1, label="track")
-        # A zero-confidence reading is no reading: grey track only, no colour.
-        sounded = [i for i, f in enumerate(fixes) if f.sonar_confidence_pct > 0]
+        # A zero-confidence reading is no reading, nor is a sentinel distance:
+        # grey track only, no colour.
+        sounded = [
+            i for i, f in enumerate(fixes) if _sounded(f.sonar_distance_m, f.sonar_confidence_pct)
+        ]
         if sounded:
             points = ax.scatter(
                 [track_x[i] for i in sounded],
@@ -198,6 +202,12 @@ def survey_figure(casts: Sequence[CastRecord], fixes: Sequence[FixRecord]) -> An
         fontsize="x-small",
     )
     return fig
+
+
+def _sounded(distance_m: float, confidence_pct: int) -> bool:
+    """A sonar reading worth drawing: some confidence (at most 100 %), and a distance
+    that can be a bottom (not 0, not a sentinel such as 4294967295 mm)."""
+    return distrust(round(distance_m * 1000), confidence_pct, min_confidence=1) is None
 
 
 def _station_label(cast: CastRecord) -> str:

@@ -1,11 +1,13 @@
-"""Which sonar bottom a cast is planned on: the freshest confident one of the sources.
+"""Which sonar bottom a cast is planned on: the freshest trusted one of the sources.
 
 Pure. The autopilot's `M` frame carries its sonar's reading; a boat with a
 Ping1D wired to the companion computer has a second one (`[sonar]`). This
-module picks, among readings at or above the confidence the planner trusts
-and no older than `max_age_s`, the one that arrived last, and hands the
-planner a start-measuring frame carrying it. With none usable, the frame goes
-to the planner as it came (and the planner ignores a bottom it cannot trust).
+module says whether a reading can be trusted at all (`distrust`: a confidence
+under the planner's or over 100 %, a distance of 0 or a sentinel such as
+4294967295 mm is no bottom), picks among the trusted readings no older than
+`max_age_s` the one that arrived last, and hands the planner a start-measuring
+frame carrying it. With none usable, the frame goes to the planner as it came
+(and the planner, finding no bottom it can trust, casts blind).
 
 The `M` frame's reading counts as arriving with the frame: the autopilot does
 not say how old its own reading was. It never reads a clock or does I/O.
@@ -21,6 +23,29 @@ from cc_daemon.core.protocol import StartMeasuring
 AUTOPILOT = "autopilot"
 ONBOARD = "onboard"
 
+NO_ECHO_MM = 0  # what a Ping reports with no echo (and an autopilot with no sonar)
+# No echosounder on a survey boat reads a bottom a kilometre down; a larger
+# distance is a sentinel or garbage: 4294967295 (all ones in the frame's u32
+# field) is what a driver that never had a reading leaves there.
+MAX_SOUNDING_MM = 1_000_000
+MAX_CONFIDENCE_PCT = 100
+
+
+def distrust(distance_mm: int, confidence_pct: int, *, min_confidence: int) -> str | None:
+    """Why a sonar reading is no bottom to plan on; None when it can be trusted."""
+    if confidence_pct > MAX_CONFIDENCE_PCT:
+        return f"sonar confidence {confidence_pct} % is over 100 %: not a reading"
+    if distance_mm == NO_ECHO_MM:
+        return "sonar distance 0 mm: no echo"
+    if distance_mm >= MAX_SOUNDING_MM:
+        return f"sonar distance {distance_mm} mm cannot be a bottom"
+    if confidence_pct < min_confidence:
+        return (
+            f"sonar confidence {confidence_pct} % is under cast.min_sonar_confidence "
+            f"{min_confidence} %"
+        )
+    return None
+
 
 @dataclass(frozen=True, slots=True)
 class Sounding:
@@ -35,14 +60,16 @@ class Sounding:
 def freshest_bottom(
     soundings: Iterable[Sounding], now: float, *, min_confidence: int, max_age_s: float
 ) -> Sounding | None:
-    """The latest-arriving confident, fresh sounding; None if there is none.
+    """The latest-arriving trusted (`distrust`), fresh sounding; None if there is none.
 
     On a tie the first given wins (give the autopilot's first: it is the
     reading the boat's own plan saw).
     """
     best: Sounding | None = None
     for sounding in soundings:
-        if sounding.confidence_pct < min_confidence or not 0 <= now - sounding.at <= max_age_s:
+        if not 0 <= now - sounding.at <= max_age_s:
+            continue
+        if distrust(sounding.distance_mm, sounding.confidence_pct, min_confidence=min_confidence):
             continue
         if best is None or sounding.at > best.at:
             best = sounding
@@ -78,6 +105,6 @@ def station_for_plan(
         station.lat_e7,
         station.alt_mm,
         best.distance_mm,
-        min(best.confidence_pct, 100),
+        best.confidence_pct,  # trusted, so 0-100
     )
     return chosen, best.source

@@ -40,6 +40,7 @@ class Outcome(StrEnum):
 @dataclass(frozen=True, slots=True)
 class CommandWinch:
     depth_m: float
+    slow: bool = False  # at the winch's approach speed (a blind cast's descent)
 
 
 @dataclass(frozen=True, slots=True)
@@ -242,7 +243,7 @@ class CastMachine:
             if isinstance(leg, Move):
                 if not self._commanded:
                     self._commanded = True
-                    out.append(CommandWinch(leg.depth_m))
+                    out.append(CommandWinch(leg.depth_m, leg.slow))
                     return  # the status in hand predates the command
                 if status.moving:
                     return

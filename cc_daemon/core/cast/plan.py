@@ -2,6 +2,13 @@
 
 Pure. It decides how deep the probe goes and the legs of the profile; it does
 not move anything. Depths are metres below the surface, positive down.
+
+A frame whose sonar reading cannot be trusted (`bottom.distrust`: no sonar,
+low confidence, a sentinel distance) gives no bottom to stop above, so the
+cast goes **blind**: never deeper than `cast.blind_max_depth_m`, every move
+down at the winch's approach speed (`Move.slow`), and the sonde's bottom
+contact, where a sonde is fitted, still stops the descent. Planning the full
+target depth there would drive the probe into the bed of a shoal.
 """
 
 from __future__ import annotations
@@ -10,6 +17,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal, Protocol
 
+from cc_daemon.core.cast.bottom import distrust
 from cc_daemon.core.protocol import StartMeasuring
 
 # A stop a hair shallower than the target is not worth a separate dwell.
@@ -39,6 +47,8 @@ class CastSettingsLike(Protocol):
     def soak_s(self) -> float: ...
     @property
     def soak_depth_m(self) -> float: ...
+    @property
+    def blind_max_depth_m(self) -> float: ...
 
 
 class Phase(StrEnum):
@@ -55,10 +65,11 @@ class Phase(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class Move:
-    """Run the winch to `depth_m` (0 means home)."""
+    """Run the winch to `depth_m` (0 means home); `slow`: at its approach speed."""
 
     depth_m: float
     phase: Phase
+    slow: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,7 +81,7 @@ class Hold:
 
 
 Leg = Move | Hold
-LimitedBy = Literal["target", "bottom", "line"]
+LimitedBy = Literal["target", "bottom", "line", "blind"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,20 +91,28 @@ class CastPlan:
     water_depth_m: float | None  # from the sonar, when it was confident enough
     mode: str
     legs: tuple[Leg, ...]
+    blind: str | None = None  # why no bottom could be trusted: the cast goes blind
 
     def describe(self) -> dict[str, object]:
-        return {
+        described: dict[str, object] = {
             "depth_m": self.depth_m,
             "limited_by": self.limited_by,
             "water_depth_m": self.water_depth_m,
             "mode": self.mode,
-            "legs": [
-                {"move_to_m": leg.depth_m, "phase": str(leg.phase)}
-                if isinstance(leg, Move)
-                else {"hold_s": leg.seconds, "phase": str(leg.phase)}
-                for leg in self.legs
-            ],
+            "legs": [_describe(leg) for leg in self.legs],
         }
+        if self.blind is not None:
+            described["blind"] = self.blind
+        return described
+
+
+def _describe(leg: Leg) -> dict[str, object]:
+    if isinstance(leg, Hold):
+        return {"hold_s": leg.seconds, "phase": str(leg.phase)}
+    move: dict[str, object] = {"move_to_m": leg.depth_m, "phase": str(leg.phase)}
+    if leg.slow:
+        move["speed"] = "approach"
+    return move
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,11 +130,18 @@ def plan_cast(
     depth = settings.target_depth_m
     limited_by: LimitedBy = "target"
     water_depth: float | None = None
-    if station.sonar_confidence_pct >= settings.min_sonar_confidence:
+    blind = distrust(
+        station.sonar_distance_mm,
+        station.sonar_confidence_pct,
+        min_confidence=settings.min_sonar_confidence,
+    )
+    if blind is None:
         water_depth = station.sonar_distance_mm / 1000.0
         above_bottom = water_depth - settings.bottom_clearance_m
         if above_bottom < depth:
             depth, limited_by = above_bottom, "bottom"
+    elif settings.blind_max_depth_m < depth:
+        depth, limited_by = settings.blind_max_depth_m, "blind"
     if max_line_m < depth:
         depth, limited_by = max_line_m, "line"
     if depth < settings.min_depth_m:
@@ -131,17 +157,24 @@ def plan_cast(
                 f"{settings.min_depth_m} m"
             ),
         )
+    slow = blind is not None  # down at the approach speed: the bed may be anywhere below
     legs: list[Leg] = []
     if settings.soak_s > 0 and settings.soak_depth_m < depth:
-        legs += [Move(settings.soak_depth_m, Phase.SOAKING), Hold(settings.soak_s, Phase.SOAKING)]
+        legs += [
+            Move(settings.soak_depth_m, Phase.SOAKING, slow),
+            Hold(settings.soak_s, Phase.SOAKING),
+        ]
     if settings.mode == "stepped":
         level = settings.step_m
         while level < depth - _LEVEL_EPSILON_M:
-            legs += [Move(level, Phase.DESCENDING), Hold(settings.dwell_s, Phase.DWELLING)]
+            legs += [Move(level, Phase.DESCENDING, slow), Hold(settings.dwell_s, Phase.DWELLING)]
             level += settings.step_m
-        legs += [Move(depth, Phase.DESCENDING), Hold(settings.dwell_s, Phase.DWELLING)]
+        legs += [Move(depth, Phase.DESCENDING, slow), Hold(settings.dwell_s, Phase.DWELLING)]
     else:
-        legs += [Move(depth, Phase.DESCENDING), Hold(settings.bottom_dwell_s, Phase.DWELLING)]
+        legs += [
+            Move(depth, Phase.DESCENDING, slow),
+            Hold(settings.bottom_dwell_s, Phase.DWELLING),
+        ]
     legs.append(Move(0.0, Phase.ASCENDING))
     return CastPlan(
         depth_m=depth,
@@ -149,4 +182,5 @@ def plan_cast(
         water_depth_m=water_depth,
         mode=settings.mode,
         legs=tuple(legs),
+        blind=blind,
     )

@@ -18,7 +18,7 @@ Contract:
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+from typing import NamedTuple, Protocol, runtime_checkable
 
 
 class WinchStatus(NamedTuple):
@@ -38,3 +38,12 @@ class Winch(Protocol):
     async def wait_change(self, timeout: float) -> None: ...
 
     async def close(self) -> None: ...
+
+
+@runtime_checkable
+class ApproachSpeed(Protocol):
+    """A winch that can run a whole move at its approach speed (the speed it slows
+    to near a target): a blind cast pays out at it, the bed being anywhere below.
+    A backend without it runs a blind cast's moves at its one speed."""
+
+    def move_slowly_to(self, depth_m: float) -> None: ...
