@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import importlib
 import os
 import signal
 import sys
@@ -156,20 +157,33 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from cc_daemon.cli import data as datacli
-    from cc_daemon.cli import sonde as sondecli
-    from cc_daemon.cli import winch as winchcli
-    from cc_daemon.cli.doctor import command as doctor_cli
-    from cc_daemon.cli.status import command as status_cli
-    from cc_daemon.sim import commands as simulator
-    from cc_daemon.sim import sonar_cli
-    from cc_daemon.sim import sondecli as simulate_sonde
+# Each command's module, imported only when that command runs (or for --help): the
+# daemon itself imports none of them (docs/performance.md). Order: the --help listing.
+_COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
+    (("casts", "export", "plot", "snapshot"), "cc_daemon.cli.data", "add_commands"),
+    (("simulate-autopilot",), "cc_daemon.sim.commands", "add_commands"),
+    (("status",), "cc_daemon.cli.status.command", "add_commands"),
+    (("doctor",), "cc_daemon.cli.doctor.command", "add_commands"),
+    (("sonde",), "cc_daemon.cli.sonde", "add_command"),
+    (("simulate-sonde",), "cc_daemon.sim.sondecli", "add_command"),
+    (("winch",), "cc_daemon.cli.winch", "add_command"),
+    (("simulate-sonar",), "cc_daemon.sim.sonar_cli", "add_commands"),
+)
+_HELP = ("-h", "--help")
 
+
+def build_parser(
+    command: str | None = "*", *, simulate: bool = True, exit_on_error: bool = True
+) -> argparse.ArgumentParser:
+    """The command line. `command`: the one command whose module is imported and whose
+    options are registered (`"*"`: all of them, for --help); every other command is a
+    bare name, enough to be recognised. `simulate`: register the --simulate options
+    (they live with the simulator)."""
     parser = argparse.ArgumentParser(
         prog="cc-daemon",
         description="Companion-computer daemon of an autonomous survey boat.",
         epilog="Run without a command to start the daemon.",
+        exit_on_error=exit_on_error,
     )
     parser.add_argument("--version", action="version", version=f"cc-daemon {__version__}")
     parser.add_argument(
@@ -178,18 +192,51 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a whole survey against a simulated autopilot over a pty pair",
     )
     _add_daemon_options(parser)
-    simulator.add_simulate_arguments(parser)
+    if simulate:
+        from cc_daemon.sim.commands import add_simulate_arguments
+
+        add_simulate_arguments(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    _add_decode(sub)
-    datacli.add_commands(sub)
-    simulator.add_commands(sub)
-    status_cli.add_commands(sub)
-    doctor_cli.add_commands(sub)
-    sondecli.add_command(sub)
-    simulate_sonde.add_command(sub)
-    winchcli.add_command(sub)
-    sonar_cli.add_commands(sub)
+    if command in ("*", "decode"):
+        _add_decode(sub)
+    else:
+        sub.add_parser("decode", add_help=False)
+    for names, module, register in _COMMANDS:
+        if command == "*" or command in names:
+            getattr(importlib.import_module(module), register)(sub)
+        else:
+            for name in names:
+                sub.add_parser(name, add_help=False)
     return parser
+
+
+def parse_command_line(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
+    """The parser and the arguments, importing no more than the run needs.
+
+    A first pass, with every command a bare name and no --simulate options, finds
+    the command. The daemon's own run (no command, no --simulate, every word known)
+    stops there; a command is parsed again with its own options; anything the first
+    pass cannot read (--help, a stray option, a typo) by the whole parser, as ever.
+    """
+    words = list(argv)
+    if not any(word in _HELP for word in words):
+        first = build_parser(None, simulate=False, exit_on_error=False)
+        try:
+            args, extra = first.parse_known_args(words)
+        except argparse.ArgumentError:
+            pass  # the whole parser below says what is wrong, in its words
+        else:
+            if args.command is None and not args.simulate and not extra:
+                return first, args
+            command = args.command
+            before = words[: words.index(command)] if command in words else words
+            # A command's run has no use for the --simulate options (nor their import),
+            # unless one was given before it: then the error names it (`main`).
+            simulate = command is None or args.simulate or any(w in extra for w in before)
+            parser = build_parser(command, simulate=simulate)
+            return parser, parser.parse_args(words)
+    parser = build_parser()
+    return parser, parser.parse_args(words)
 
 
 def _load(args: argparse.Namespace) -> Any:
@@ -208,11 +255,16 @@ def _configure_daemon_logging(settings: Any) -> None:
 
 
 def _run_daemon(args: argparse.Namespace) -> int:
+    from cc_daemon.ground.richless import import_structlog_without_rich
+
+    import_structlog_without_rich()  # before anything logs: the service logs JSON
     from cc_daemon.daemon.preflight import check_paths, open_journal
     from cc_daemon.daemon.reload import Reloader
     from cc_daemon.daemon.service import Daemon
     from cc_daemon.daemon.simgate import check_backend_allowed
-    from cc_daemon.sim.devices import SIMULATORS
+    from cc_daemon.daemon.simulators import Simulators
+
+    simulators = Simulators(sonde=_simulated_sonde, drum=_simulated_drum)
 
     # From the first moment: the SSH session that started us closing must not
     # kill us (and a reload sent before the loop runs is simply not needed).
@@ -221,13 +273,30 @@ def _run_daemon(args: argparse.Namespace) -> int:
     check_paths(settings)  # a port or journal path that can never work: exit 2 now
     check_backend_allowed(settings)  # a simulated winch not asked for: exit 2, nothing opened
     _configure_daemon_logging(settings)
-    daemon = Daemon(settings, journal=open_journal(settings), simulators=SIMULATORS)
+    daemon = Daemon(settings, journal=open_journal(settings), simulators=simulators)
     reloader = Reloader(daemon, lambda: _load(args), _configure_daemon_logging)
     try:
         return asyncio.run(_serve(daemon, reloader))
     finally:
         # Closing the loop gave SIGHUP its default (fatal) action back.
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+
+# The simulated devices, imported from the simulator only when a backend set to one
+# (sonde.backend = "sim", winch.gpio.pin_factory = "mock") is built, at start or on
+# a reload: a daemon with real devices loads nothing of `cc_daemon.sim`.
+def _simulated_sonde(path: Path, line_out: Callable[[], float], settings: Any) -> Any:
+    from cc_daemon.sim.devices import SIMULATORS
+
+    assert SIMULATORS.sonde is not None
+    return SIMULATORS.sonde(path, line_out, settings)
+
+
+def _simulated_drum(settings: Any) -> Any:
+    from cc_daemon.sim.devices import SIMULATORS
+
+    assert SIMULATORS.drum is not None
+    return SIMULATORS.drum(settings)
 
 
 async def _serve(daemon: Any, reload: Callable[[], None] | None = None) -> int:
@@ -291,9 +360,8 @@ def _ignore_hangup() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
     words = sys.argv[1:] if argv is None else argv
+    parser, args = parse_command_line(words)
     stray = [] if args.simulate else _simulate_only_options(parser, args, words)
     if stray:
         print(f"cc-daemon: {', '.join(stray)} applies only with --simulate", file=sys.stderr)

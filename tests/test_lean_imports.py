@@ -1,0 +1,66 @@
+"""The daemon imports only what its settings use (issue 22, docs/performance.md).
+
+A real daemon process, started as the service is (JSON log, the simulated winch,
+no sonde, no sonar), answers a P-S and is stopped with SIGTERM; a wrapper then
+writes every module it imported in its life (`tests/modules_at_exit.py`).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from pathlib import Path
+
+from tests.daemonkit import DaemonProcess
+
+HELPER = Path(__file__).with_name("modules_at_exit.py")
+
+# (what must stay out, the module-name prefixes that would mean it came in)
+_NEVER = {
+    "the simulator": ("cc_daemon.sim",),
+    "the data, plot and export commands": ("cc_daemon.cli.data", "cc_daemon.cli.sonde"),
+    "the exports": ("cc_daemon.export",),
+    "doctor": ("cc_daemon.cli.doctor",),
+    "the other commands": ("cc_daemon.cli.status", "cc_daemon.cli.winch"),
+    "brping with no sonar": ("brping",),
+    "gpiozero with the simulated winch": ("gpiozero", "cc_daemon.drivers.winch.gpio"),
+    "rich and pygments with a JSON log": ("rich", "pygments"),
+}
+
+
+def _matches(module: str, prefix: str) -> bool:
+    return module == prefix or module.startswith(prefix + ".")
+
+
+async def test_the_daemon_imports_nothing_it_does_not_use(tmp_path):
+    daemon = DaemonProcess(tmp_path)
+    dump = tmp_path / "modules.txt"
+    try:
+        daemon.start(prefix=[sys.executable, str(HELPER), str(dump), "--"])
+        await daemon.connect()
+        await daemon.wait_answering()
+        daemon.send_signal(signal.SIGTERM)
+        assert await daemon.wait_exit() == 0
+    finally:
+        await daemon.close()
+    modules = set(dump.read_text().split())
+    # The dump is the daemon's: its own modules are in it.
+    assert {"cc_daemon.daemon.service", "structlog", "serial"} <= modules
+    found = {
+        what: sorted(m for m in modules if any(_matches(m, p) for p in prefixes))
+        for what, prefixes in _NEVER.items()
+    }
+    assert {what: mods for what, mods in found.items() if mods} == {}
+
+
+def test_the_first_pass_reads_the_daemon_and_each_command_gets_its_own_options():
+    from cc_daemon.cli.app import parse_command_line
+
+    _, daemon = parse_command_line(["--port", "/dev/ttyX", "--log-format", "json"])
+    assert (daemon.command, daemon.port, daemon.log_format) == (None, "/dev/ttyX", "json")
+    _, status = parse_command_line(["status", "--json"])
+    assert status.command == "status" and status.json and callable(status.handler)
+    _, survey = parse_command_line(["--simulate", "--stations", "2", "--winch", "gpio-mock"])
+    assert survey.simulate and survey.stations == 2 and survey.winch == "gpio-mock"
+    _, export = parse_command_line(["--config", "x.toml", "export", "--format", "csv"])
+    assert export.command == "export" and export.format == "csv"
