@@ -216,10 +216,13 @@ class Journal(BufferedWriter):
                 self._append(row)
                 return
             with self._lock:
+                first = not thinner.holding  # the writer may sleep with no deadline
                 ready = thinner.offer(row, mono)
                 thinned = thinner.report(mono)
             if ready is not None:
                 self._append(ready)
+            elif first:
+                self._wake.set()  # to release the held fix once its interval is over
             if thinned:
                 self._report_thinned(thinned)
         except Exception as exc:
@@ -245,6 +248,11 @@ class Journal(BufferedWriter):
             rate_hz=self._thinner.rate_hz,
             note="fixes beyond the journal's telemetry rate: the latest of each interval is kept",
         )
+
+    def _holds_rows(self) -> bool:
+        # A held fix is released by a pass once its interval is over: keep the tick.
+        with self._lock:
+            return self._thinner is not None and self._thinner.holding
 
     def _before_pass(self) -> None:
         # The writer thread: a held fix whose interval is over goes to the buffer.

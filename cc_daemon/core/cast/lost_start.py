@@ -13,6 +13,7 @@ Pure: told about `T` frames and corrupt frames, asked at `now`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 SILENCE_S = 3.0
@@ -40,6 +41,14 @@ class LostStartWatch:
 
     def corrupt(self) -> None:
         self._corrupt += 1
+
+    def next_deadline(self, cast_running: bool) -> float | None:
+        """The first `now` at which `check` would suspect a lost `M`, if nothing is
+        heard before it; None while nothing could (no corrupt frame, a cast, said)."""
+        last = self._last_t
+        if self.suspected is not None or last is None or cast_running or not self._corrupt:
+            return None
+        return math.nextafter(last + self.silence_s, math.inf)  # `check` wants more than
 
     def check(self, now: float, cast_running: bool) -> LostStart | None:
         """A new suspicion at `now` (once per silence), else None."""

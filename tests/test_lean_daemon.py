@@ -1,12 +1,15 @@
-"""The daemon imports only what its settings use (issue 22, docs/performance.md).
+"""A lean daemon (issue 22, docs/performance.md): it imports only what its settings
+use, and asleep it wakes at most once a second.
 
 A real daemon process, started as the service is (JSON log, the simulated winch,
-no sonde, no sonar), answers a P-S and is stopped with SIGTERM; a wrapper then
-writes every module it imported in its life (`tests/modules_at_exit.py`).
+no sonde, no sonar), answers a P-S, idles while the kernel counts its threads'
+sleeps, and is stopped with SIGTERM; a wrapper then writes every module it
+imported in its life (`tests/modules_at_exit.py`).
 """
 
 from __future__ import annotations
 
+import asyncio
 import signal
 import sys
 from pathlib import Path
@@ -32,17 +35,41 @@ def _matches(module: str, prefix: str) -> bool:
     return module == prefix or module.startswith(prefix + ".")
 
 
-async def test_the_daemon_imports_nothing_it_does_not_use(tmp_path):
+def voluntary_switches(pid: int) -> dict[int, int]:
+    """Each thread's sleeps so far (the kernel's count of voluntary context switches)."""
+    counts = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        status = (task / "status").read_text()
+        counts[int(task.name)] = int(status.split("voluntary_ctxt_switches:")[1].split()[0])
+    return counts
+
+
+IDLE_S = 3.0
+
+
+async def test_the_daemon_imports_nothing_it_does_not_use_and_sleeps_when_idle(tmp_path):
     daemon = DaemonProcess(tmp_path)
     dump = tmp_path / "modules.txt"
     try:
         daemon.start(prefix=[sys.executable, str(HELPER), str(dump), "--"])
         await daemon.connect()
         await daemon.wait_answering()
+        assert daemon.proc is not None
+        pid = daemon.proc.pid
+        await asyncio.sleep(1.0)  # the start's rows written, the R-P's log line out
+        before = voluntary_switches(pid)
+        await asyncio.sleep(IDLE_S)
+        after = voluntary_switches(pid)
         daemon.send_signal(signal.SIGTERM)
         assert await daemon.wait_exit() == 0
     finally:
         await daemon.close()
+    # The main thread: the housekeeping second only (the line watch ticked ten times
+    # a second); every other thread (the journal's writer): not once.
+    main = after[pid] - before[pid]
+    others = {tid: n - before.get(tid, 0) for tid, n in after.items() if tid != pid}
+    assert main <= IDLE_S * 1.5, (main, others)
+    assert sum(others.values()) == 0, (main, others)
     modules = set(dump.read_text().split())
     # The dump is the daemon's: its own modules are in it.
     assert {"cc_daemon.daemon.service", "structlog", "serial"} <= modules
