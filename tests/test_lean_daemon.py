@@ -24,7 +24,7 @@ _NEVER = {
     "the data, plot and export commands": ("cc_daemon.cli.data", "cc_daemon.cli.sonde"),
     "the exports": ("cc_daemon.export",),
     "doctor": ("cc_daemon.cli.doctor",),
-    "the other commands": ("cc_daemon.cli.status", "cc_daemon.cli.winch"),
+    "the other commands": ("cc_daemon.cli.status", "cc_daemon.cli.winch", "cc_daemon.cli.decode"),
     "brping with no sonar": ("brping",),
     "gpiozero with the simulated winch": ("gpiozero", "cc_daemon.drivers.winch.gpio"),
     "rich and pygments with a JSON log": ("rich", "pygments"),

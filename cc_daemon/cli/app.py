@@ -32,13 +32,6 @@ from pathlib import Path
 from typing import Any
 
 from cc_daemon import __version__
-from cc_daemon.cli.decode import (
-    HexInputError,
-    decode_chunks,
-    parse_hex,
-    print_events,
-    read_stdin_chunks,
-)
 from cc_daemon.core.errors import ConfigError, WinchFault
 
 EXIT_USAGE = 2
@@ -68,9 +61,14 @@ def _add_decode(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 def _run_decode(args: argparse.Namespace) -> int:
     from cc_daemon.cli.decode import (
         HEX_SNIFF_BYTES,
+        HexInputError,
         checked_baudrate,
+        decode_chunks,
         keeping_head,
         looks_like_hex,
+        parse_hex,
+        print_events,
+        read_stdin_chunks,
         summary_line,
         usage_problem,
     )
