@@ -10,11 +10,13 @@ imported in its life (`tests/modules_at_exit.py`).
 from __future__ import annotations
 
 import asyncio
+import os
 import signal
+import subprocess
 import sys
 from pathlib import Path
 
-from tests.daemonkit import DaemonProcess
+from tests.daemonkit import REPO, DaemonProcess
 
 HELPER = Path(__file__).with_name("modules_at_exit.py")
 
@@ -28,6 +30,7 @@ _NEVER = {
     "brping with no sonar": ("brping",),
     "gpiozero with the simulated winch": ("gpiozero", "cc_daemon.drivers.winch.gpio"),
     "rich and pygments with a JSON log": ("rich", "pygments"),
+    "ssl (the daemon opens no TLS connection)": ("ssl", "_ssl"),
 }
 
 
@@ -91,3 +94,27 @@ def test_the_first_pass_reads_the_daemon_and_each_command_gets_its_own_options()
     assert survey.simulate and survey.stations == 2 and survey.winch == "gpio-mock"
     _, export = parse_command_line(["--config", "x.toml", "export", "--format", "csv"])
     assert export.command == "export" and export.format == "csv"
+
+
+def test_the_lean_imports_hide_nothing_afterwards():
+    # A fresh interpreter: asyncio and structlog come in without ssl and rich, which
+    # anyone (pymodbus, the console renderer) can still import afterwards.
+    code = (
+        "import sys\n"
+        "from cc_daemon.ground.leanimports import import_daemon_libraries_lean\n"
+        "import_daemon_libraries_lean()\n"
+        "assert {'asyncio', 'structlog'} <= set(sys.modules), 'not imported'\n"
+        "assert not {'ssl', 'rich'} & set(sys.modules), 'an extra came in'\n"
+        "import ssl, rich.console\n"
+        "import asyncio\n"
+        "asyncio.run(asyncio.sleep(0))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=60,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
+    assert done.returncode == 0, done.stderr

@@ -22,7 +22,6 @@ stopped at once by a second Ctrl-C and the probe may be down.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import importlib
 import os
 import signal
@@ -253,9 +252,11 @@ def _configure_daemon_logging(settings: Any) -> None:
 
 
 def _run_daemon(args: argparse.Namespace) -> int:
-    from cc_daemon.ground.richless import import_structlog_without_rich
+    from cc_daemon.ground.leanimports import import_daemon_libraries_lean
 
-    import_structlog_without_rich()  # before anything logs: the service logs JSON
+    import_daemon_libraries_lean()  # before anything imports asyncio or structlog
+    import asyncio
+
     from cc_daemon.daemon.preflight import check_paths, open_journal
     from cc_daemon.daemon.reload import Reloader
     from cc_daemon.daemon.service import Daemon
@@ -298,6 +299,8 @@ def _simulated_drum(settings: Any) -> Any:
 
 
 async def _serve(daemon: Any, reload: Callable[[], None] | None = None) -> int:
+    import asyncio
+
     import structlog
 
     log = structlog.get_logger("cc_daemon.cli")

@@ -361,7 +361,7 @@ def configure_logging(
 
 def _console_traceback(*, colors: bool) -> Callable[[TextIO, Any], None]:
     """rich's traceback if rich is installed, imported at the first exception shown
-    (the daemon imports structlog blind to rich: `richless`); else the plain one."""
+    (the daemon imports structlog blind to rich: `leanimports`); else the plain one."""
 
     def render(sio: TextIO, exc_info: Any) -> None:
         try:
