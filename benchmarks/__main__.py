@@ -13,7 +13,17 @@ import importlib.util
 import sys
 import traceback
 
-MODULES = ["parser", "journal", "daemon", "status_flood", "sonde", "winch", "flood"]
+MODULES = [
+    "goals",
+    "transport",
+    "parser",
+    "journal",
+    "daemon",
+    "status_flood",
+    "sonde",
+    "winch",
+    "flood",
+]
 
 
 def main() -> int:

@@ -132,7 +132,7 @@ def _fake_port(monkeypatch: pytest.MonkeyPatch, up_for_s: float, failures: list[
         loop.call_later(up_for_s, protocol.connection_lost, OSError(5, "Input/output error"))
         return transport, protocol
 
-    monkeypatch.setattr("cc_daemon.drivers.link.serial_asyncio.create_serial_connection", create)
+    monkeypatch.setattr("cc_daemon.drivers.link.fdserial.create_serial_connection", create)
 
 
 async def _run_for(link: SerialLink, seconds: float) -> None:

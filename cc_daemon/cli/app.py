@@ -22,8 +22,8 @@ stopped at once by a second Ctrl-C and the probe may be down.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
+import importlib
 import os
 import sys
 from collections.abc import Callable, Iterable, Sequence
@@ -31,13 +31,6 @@ from pathlib import Path
 from typing import Any
 
 from cc_daemon import __version__
-from cc_daemon.cli.decode import (
-    HexInputError,
-    decode_chunks,
-    parse_hex,
-    print_events,
-    read_stdin_chunks,
-)
 from cc_daemon.core.errors import ConfigError, WinchFault
 from cc_daemon.ground.signals import SignalHold
 
@@ -68,9 +61,14 @@ def _add_decode(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 def _run_decode(args: argparse.Namespace) -> int:
     from cc_daemon.cli.decode import (
         HEX_SNIFF_BYTES,
+        HexInputError,
         checked_baudrate,
+        decode_chunks,
         keeping_head,
         looks_like_hex,
+        parse_hex,
+        print_events,
+        read_stdin_chunks,
         summary_line,
         usage_problem,
     )
@@ -164,21 +162,35 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from cc_daemon.cli import data as datacli
-    from cc_daemon.cli import sonde as sondecli
-    from cc_daemon.cli import winch as winchcli
-    from cc_daemon.cli.doctor import command as doctor_cli
+# Each command's module, imported only when that command runs (or for --help): the
+# daemon itself imports none of them (docs/performance.md). Order: the --help listing.
+_COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
+    (("casts", "export", "plot", "snapshot", "surveys"), "cc_daemon.cli.data", "add_commands"),
+    (("simulate-autopilot",), "cc_daemon.sim.commands", "add_commands"),
+    (("status",), "cc_daemon.cli.status.command", "add_commands"),
+    (("doctor",), "cc_daemon.cli.doctor.command", "add_commands"),
+    (("sonde",), "cc_daemon.cli.sonde", "add_command"),
+    (("simulate-sonde",), "cc_daemon.sim.sondecli", "add_command"),
+    (("winch",), "cc_daemon.cli.winch", "add_command"),
+    (("simulate-sonar",), "cc_daemon.sim.sonar_cli", "add_commands"),
+)
+_HELP = ("-h", "--help")
+
+
+def build_parser(
+    command: str | None = "*", *, simulate: bool = True, exit_on_error: bool = True
+) -> argparse.ArgumentParser:
+    """The command line. `command`: the one command whose module is imported and whose
+    options are registered (`"*"`: all of them, for --help); every other command is a
+    bare name, enough to be recognised. `simulate`: register the --simulate options
+    (they live with the simulator)."""
     from cc_daemon.cli.parser import HintingParser
-    from cc_daemon.cli.status import command as status_cli
-    from cc_daemon.sim import commands as simulator
-    from cc_daemon.sim import sonar_cli
-    from cc_daemon.sim import sondecli as simulate_sonde
 
     parser: argparse.ArgumentParser = HintingParser(
         prog="cc-daemon",
         description="Companion-computer daemon of an autonomous survey boat.",
         epilog="Run without a command to start the daemon.",
+        exit_on_error=exit_on_error,
     )
     parser.add_argument("--version", action="version", version=f"cc-daemon {__version__}")
     parser.add_argument(
@@ -187,18 +199,51 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a whole survey against a simulated autopilot over a pty pair",
     )
     _add_daemon_options(parser)
-    simulator.add_simulate_arguments(parser)
+    if simulate:
+        from cc_daemon.sim.commands import add_simulate_arguments
+
+        add_simulate_arguments(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    _add_decode(sub)
-    datacli.add_commands(sub)
-    simulator.add_commands(sub)
-    status_cli.add_commands(sub)
-    doctor_cli.add_commands(sub)
-    sondecli.add_command(sub)
-    simulate_sonde.add_command(sub)
-    winchcli.add_command(sub)
-    sonar_cli.add_commands(sub)
+    if command in ("*", "decode"):
+        _add_decode(sub)
+    else:
+        sub.add_parser("decode", add_help=False)
+    for names, module, register in _COMMANDS:
+        if command == "*" or command in names:
+            getattr(importlib.import_module(module), register)(sub)
+        else:
+            for name in names:
+                sub.add_parser(name, add_help=False)
     return parser
+
+
+def parse_command_line(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
+    """The parser and the arguments, importing no more than the run needs.
+
+    A first pass, with every command a bare name and no --simulate options, finds
+    the command. The daemon's own run (no command, no --simulate, every word known)
+    stops there; a command is parsed again with its own options; anything the first
+    pass cannot read (--help, a stray option, a typo) by the whole parser, as ever.
+    """
+    words = list(argv)
+    if not any(word in _HELP for word in words):
+        first = build_parser(None, simulate=False, exit_on_error=False)
+        try:
+            args, extra = first.parse_known_args(words)
+        except argparse.ArgumentError:
+            pass  # the whole parser below says what is wrong, in its words
+        else:
+            if args.command is None and not args.simulate and not extra:
+                return first, args
+            command = args.command
+            before = words[: words.index(command)] if command in words else words
+            # A command's run has no use for the --simulate options (nor their import),
+            # unless one was given before it: then the error names it (`main`).
+            simulate = command is None or args.simulate or any(w in extra for w in before)
+            parser = build_parser(command, simulate=simulate)
+            return parser, parser.parse_args(words)
+    parser = build_parser()
+    return parser, parser.parse_args(words)
 
 
 def _load(args: argparse.Namespace) -> Any:
@@ -217,13 +262,20 @@ def _configure_daemon_logging(settings: Any) -> None:
 
 
 def _run_daemon(args: argparse.Namespace, held: SignalHold) -> int:
+    from cc_daemon.ground.leanimports import import_daemon_libraries_lean
+
+    import_daemon_libraries_lean()  # before anything imports asyncio or structlog
+    import asyncio
+
     from cc_daemon.daemon.preflight import check_paths, open_journal
     from cc_daemon.daemon.reload import Reloader
     from cc_daemon.daemon.service import Daemon
     from cc_daemon.daemon.signals import stopped_before_ready
     from cc_daemon.daemon.simgate import check_backend_allowed
+    from cc_daemon.daemon.simulators import Simulators
     from cc_daemon.drivers.winch.factory import check_pin_library
-    from cc_daemon.sim.devices import SIMULATORS
+
+    simulators = Simulators(sonde=_simulated_sonde, drum=_simulated_drum)
 
     # `held` has caught the daemon's signals since the first instruction
     # (cc_daemon.__main__): a SIGHUP now waits for the loop, a stop ends us cleanly.
@@ -234,9 +286,26 @@ def _run_daemon(args: argparse.Namespace, held: SignalHold) -> int:
     _configure_daemon_logging(settings)
     if held.stop_requested():  # nothing opened yet, the probe never moved
         return stopped_before_ready(held)
-    daemon = Daemon(settings, journal=open_journal(settings), simulators=SIMULATORS)
+    daemon = Daemon(settings, journal=open_journal(settings), simulators=simulators)
     reloader = Reloader(daemon, lambda: _load(args), _configure_daemon_logging)
     return asyncio.run(_serve(daemon, held, reloader))
+
+
+# The simulated devices, imported from the simulator only when a backend set to one
+# (sonde.backend = "sim", winch.gpio.pin_factory = "mock") is built, at start or on
+# a reload: a daemon with real devices loads nothing of `cc_daemon.sim`.
+def _simulated_sonde(path: Path, line_out: Callable[[], float], settings: Any) -> Any:
+    from cc_daemon.sim.devices import SIMULATORS
+
+    assert SIMULATORS.sonde is not None
+    return SIMULATORS.sonde(path, line_out, settings)
+
+
+def _simulated_drum(settings: Any) -> Any:
+    from cc_daemon.sim.devices import SIMULATORS
+
+    assert SIMULATORS.drum is not None
+    return SIMULATORS.drum(settings)
 
 
 async def _serve(daemon: Any, held: SignalHold, reload: Callable[[], None] | None = None) -> int:
@@ -280,13 +349,12 @@ def main(argv: Sequence[str] | None = None, *, held: SignalHold | None = None) -
     held = held if held is not None else SignalHold.hold()
     daemon_mode = False
     try:
-        parser = build_parser()
-        args = parser.parse_args(argv)
+        words = sys.argv[1:] if argv is None else argv
+        parser, args = parse_command_line(words)
         handler = getattr(args, "handler", None)
         daemon_mode = handler is None and not args.simulate
         if not daemon_mode:
             held.release()
-        words = sys.argv[1:] if argv is None else argv
         stray = [] if args.simulate else _simulate_only_options(parser, args, words)
         if stray:
             print(f"cc-daemon: {', '.join(stray)} applies only with --simulate", file=sys.stderr)

@@ -19,7 +19,6 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 from pydantic_core import ErrorDetails
-from pydantic_settings import TomlConfigSettingsSource
 
 from cc_daemon.config import naming
 from cc_daemon.config.rules import _Key, _Leaf, _Origin
@@ -102,7 +101,8 @@ _TOML_POSITION = re.compile(r"\s*\(at line (\d+), column (\d+)\)$")
 
 def _read_toml(path: Path, problems: list[str]) -> list[_Leaf]:
     try:
-        data = TomlConfigSettingsSource(Settings, toml_file=path)()
+        with path.open("rb") as file:
+            data = tomllib.load(file)
     except tomllib.TOMLDecodeError as exc:
         message = str(exc)
         found = _TOML_POSITION.search(message)

@@ -14,11 +14,11 @@ from pydantic import (
     AfterValidator,
     BaseModel,
     BeforeValidator,
+    ConfigDict,
     Field,
     PrivateAttr,
     model_validator,
 )
-from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from cc_daemon.config import naming
 from cc_daemon.config.rules import (
@@ -325,10 +325,19 @@ class SonarSettings(BaseModel):
         return self
 
 
-class Settings(BaseSettings):
-    """The whole configuration, frozen. Build it with `load_settings` to read sources."""
+class Settings(BaseModel):
+    """The whole configuration, frozen. Build it with `load_settings` to read sources.
 
-    model_config = SettingsConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    A plain model, not pydantic-settings' BaseSettings: `load_settings` reads the
+    sources itself, one layer at a time, because an error must name the source of
+    the bad value (and `Settings()` in a test must not pick up a developer's
+    CC_DAEMON_* variables); pydantic-settings cost the daemon 200 modules, 17 MiB
+    and a third of its start (docs/performance.md).
+    """
+
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, allow_inf_nan=False, validate_default=True
+    )
 
     serial: SerialSettings = SerialSettings()
     winch: WinchSettings = WinchSettings()
@@ -364,22 +373,6 @@ class Settings(BaseSettings):
             where = "default" if node == naming.default_at(type(self)(), key) else "given"
             return f"{dotted_key} = {naming.render(node)} ({where})"
         return naming.key_value_source(key, self._merged, self._origins, type(self)())
-
-    @classmethod
-    def settings_customise_sources(
-        cls,
-        settings_cls: type[BaseSettings],
-        init_settings: PydanticBaseSettingsSource,
-        env_settings: PydanticBaseSettingsSource,
-        dotenv_settings: PydanticBaseSettingsSource,
-        file_secret_settings: PydanticBaseSettingsSource,
-    ) -> tuple[PydanticBaseSettingsSource, ...]:
-        # Only the constructor's arguments: `Settings()` in a test must not pick up a
-        # developer's CC_DAEMON_* variables or ./cc-daemon.toml. load_settings reads
-        # the sources itself, one layer at a time, because an error must name the
-        # source of the bad value; and it reads the environment without
-        # EnvSettingsSource, which skips unknown CC_DAEMON_ variables silently.
-        return (init_settings,)
 
     @model_validator(mode="after")
     def _check(self) -> Settings:

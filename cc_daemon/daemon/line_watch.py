@@ -12,6 +12,7 @@ reply to a stick frame.
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 
 import structlog
@@ -34,7 +35,9 @@ from cc_daemon.core.winch.status import WinchStatus
 
 _log = structlog.get_logger("cc_daemon.service")
 
-TICK_S = 0.1  # how often the daemon calls `tick`
+# While a jog runs, `tick` also watches the winch (home, the line's end, a fault):
+# then it is due this often. Otherwise it is due only at the machines' deadlines.
+TICK_S = 0.1
 
 
 class LineWatch:
@@ -60,6 +63,9 @@ class LineWatch:
         self._event = journal_event
         self._notify = notify
         self.rf_repeats_sent = 0
+        # Set when something may bring a deadline nearer (an R-F out, a corrupt frame,
+        # a jog): the daemon's watch then recomputes `next_deadline` at once.
+        self.changed = asyncio.Event()
 
     # ------------------------------------------------------------ what we hear
 
@@ -90,12 +96,15 @@ class LineWatch:
 
     def corrupt(self, now: float) -> None:
         self.lost.corrupt(now)
+        self.changed.set()
 
     def link_changed(self, up: bool, now: float) -> None:
         self.lost.link(up, now)
+        self.changed.set()
 
     def finished_sent(self, frame: Finished, now: float) -> None:
         self.rf.sent(frame, now)
+        self.changed.set()
 
     def cast_ended(self, now: float) -> None:
         self.lost.heard(now)  # the silence of the cast was expected
@@ -105,6 +114,7 @@ class LineWatch:
     def stick(self, stick: Stick, now: float) -> None:
         """A stick frame with no cast running: jog."""
         self._carry_out(self.jog.frame(stick, now, self._status()), now)
+        self.changed.set()
 
     def stop_jog(self, now: float, reason: str) -> None:
         if self.jog.active:  # no winch to ask before the daemon has made one
@@ -138,6 +148,21 @@ class LineWatch:
                     self._event("jog_stopped", **detail)
 
     # ------------------------------------------------------------ each tick
+
+    def next_deadline(self, now: float, *, cast_running: bool) -> float | None:
+        """When `tick` next has something to do; None: nothing until `changed` is set.
+
+        Each deadline is the machine's own (an R-F repeat, the lost-M silence); a
+        running jog adds `now + TICK_S`. Nothing is polled when nothing is due.
+        """
+        due = [
+            deadline
+            for deadline in (self.rf.next_deadline(), self.lost.next_deadline(cast_running))
+            if deadline is not None
+        ]
+        if self.jog.active:
+            due.append(now + TICK_S)
+        return min(due, default=None)
 
     def tick(self, now: float, *, cast_running: bool) -> None:
         if self.jog.active:

@@ -53,7 +53,7 @@ from cc_daemon.core.protocol import (
 from cc_daemon.core.status import DaemonStatus, Fix
 from cc_daemon.core.winch.status import Winch, WinchStatus
 from cc_daemon.daemon.casting import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, ActiveCast, CastRunner
-from cc_daemon.daemon.line_watch import TICK_S, LineWatch
+from cc_daemon.daemon.line_watch import LineWatch
 from cc_daemon.daemon.preflight import make_journal
 from cc_daemon.daemon.quiet_port import QuietPort
 from cc_daemon.daemon.simgate import simulation_warning
@@ -391,10 +391,25 @@ class Daemon(CastRunner):
                 self._journal_event("corrupt_frames", new=new, total=corrupt)
 
     async def _watch_line(self) -> None:
-        """The jog's dead-man stop, R-F repeats and the lost-M watch (`line_watch`)."""
+        """The jog's dead-man stop, R-F repeats and the lost-M watch (`line_watch`):
+        asleep until the next deadline, or until something brings one nearer."""
+        line = self._line
         while True:
-            await self._clock.sleep_until(self._clock.monotonic() + TICK_S)
-            self._line.tick(self._clock.monotonic(), cast_running=self._cast is not None)
+            now = self._clock.monotonic()
+            line.tick(now, cast_running=self._cast is not None)
+            line.changed.clear()
+            deadline = line.next_deadline(now, cast_running=self._cast is not None)
+            if deadline is None:
+                await line.changed.wait()
+                continue
+            # Never a busy loop, even on a deadline a rounding error keeps in the past.
+            sleeper = asyncio.ensure_future(self._clock.sleep_until(max(deadline, now + 0.001)))
+            changed = asyncio.ensure_future(line.changed.wait())
+            try:
+                await asyncio.wait((sleeper, changed), return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                sleeper.cancel()
+                changed.cancel()
 
     def _report_output_loss(self) -> None:
         """A log stream gone for good (a closed terminal): say so where it can be seen."""

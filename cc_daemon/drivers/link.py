@@ -25,9 +25,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-import serial_asyncio
 import structlog
 
+from cc_daemon.drivers import fdserial
 from cc_daemon.ground.portusers import port_users
 from cc_daemon.ground.waiting import WaitReport
 
@@ -122,7 +122,7 @@ class SerialLink:
         while True:
             protocol = _LinkProtocol(self)
             try:
-                transport, _ = await serial_asyncio.create_serial_connection(
+                transport, _ = await fdserial.create_serial_connection(
                     loop, functools.partial(_identity, protocol), self.port, **self._serial_kwargs
                 )
             except Exception as exc:

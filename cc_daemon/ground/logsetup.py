@@ -327,7 +327,12 @@ def configure_logging(
         ]
     else:
         # ConsoleRenderer formats exceptions itself (and warns if format_exc_info ran).
-        processors.append(structlog.dev.ConsoleRenderer(colors=_isatty(stream)))
+        colors = _isatty(stream)
+        processors.append(
+            structlog.dev.ConsoleRenderer(
+                colors=colors, exception_formatter=_console_traceback(colors=colors)
+            )
+        )
 
     def logger_factory(*args: Any) -> _NamedWriteLogger:
         return _NamedWriteLogger(stream, str(args[0]) if args else _DEFAULT_NAME)
@@ -352,6 +357,24 @@ def configure_logging(
         root.addHandler(_installed.handler)
         root.setLevel(levelno)
         _installed.limiter = limiter
+
+
+def _console_traceback(*, colors: bool) -> Callable[[TextIO, Any], None]:
+    """rich's traceback if rich is installed, imported at the first exception shown
+    (the daemon imports structlog blind to rich: `leanimports`); else the plain one."""
+
+    def render(sio: TextIO, exc_info: Any) -> None:
+        try:
+            from rich.console import Console
+            from rich.traceback import Traceback
+        except ImportError:
+            structlog.dev.plain_traceback(sio, exc_info)
+            return
+        sio.write("\n")
+        console = Console(file=sio, color_system="truecolor" if colors else None, width=100)
+        console.print(Traceback.from_exception(*exc_info, show_locals=True))
+
+    return render
 
 
 def flush_rate_limited(*, everything: bool = False) -> int:

@@ -5,12 +5,15 @@ and not yet committed, in two lists (telemetry fixes, and the urgent rest:
 cast rows and events) plus the transaction being written, all under one lock.
 Beyond `max_buffered_rows` it sheds the oldest fixes first, then the row kinds
 of `shed_order`, oldest first; rows of kinds not listed there (a cast's start
-and end) are never dropped. It never touches SQLite, files or threads.
+and end) are never dropped. It says when the writer must wake and, on the
+writer's thread, waits for rows (`_wait_for_rows`); it never touches SQLite or
+files, nor starts a thread.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any
 
 from cc_daemon.store.failures import RateLimitedLog
@@ -72,9 +75,13 @@ class RowBuffer:
         return {}
 
     def _buffer_row(self, row: Row) -> bool:
-        """Add `row`, shedding if over the bound; return whether it is a fix."""
+        """Add `row`, shedding if over the bound; return whether the writer must be
+        woken: for a cast row or an event, and for the first bulk row into an empty
+        buffer (the writer sleeps without a deadline while it has nothing to write;
+        later bulk rows wait for its flush deadline)."""
         fix: bool = row[0] in self.bulk_kinds
         with self._lock:
+            wake = not fix or not (self._fixes or self._in_flight)
             (self._fixes if fix else self._urgent).append(row)
             total = self._pending_locked()
             # One bound over everything unwritten. Shed to 90 % so this runs once
@@ -84,7 +91,31 @@ class RowBuffer:
             )
         if dropped:
             self._count_dropped(dropped)
-        return fix
+        return wake
+
+    def _wait_for_rows(self, deadline: float, wake: threading.Event, stop: threading.Event) -> None:
+        """On the writer's thread, sleep until there is something to write: a cast
+        row or an event at once, bulk rows (fixes) at `deadline`; with nothing at
+        all, until a row arrives (no tick: an idle daemon's writer never wakes).
+        `wake` is set when `_buffer_row` says so, `stop` at close."""
+        while not stop.is_set():
+            with self._lock:
+                urgent, bulk = bool(self._urgent), bool(self._fixes)
+            if urgent:
+                break
+            if not bulk and not self._holds_rows():
+                wake.wait()
+            else:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                wake.wait(left)
+            wake.clear()
+        wake.clear()
+
+    def _holds_rows(self) -> bool:
+        """Whether the subclass holds a row back that a pass will release (a thinned fix)."""
+        return False
 
     def _shed_locked(self, excess: int) -> int:
         """Drop `excess` rows not being written: the oldest fixes, then `shed_order`."""

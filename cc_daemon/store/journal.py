@@ -1,13 +1,12 @@
 """The survey journal's records: fixes, casts, samples, events and sonar readings.
 
-This module owns what the journal holds: the `Journal` API the daemon calls
-from its asyncio loop (`record_fix`, `start_cast`, `record_sample`, `end_cast`,
-`record_event`, `record_sonar`), the rows those build and the SQL that stores them, the
-session each run opens, and closing the casts a crash left open. Every call
-stamps its row (monotonic time, wall-clock UTC, whether the clock looked
-synchronised), hands it to the buffered writer (`writer.BufferedWriter`) and
-returns in about a microsecond; it never raises into the daemon and never
-drops a cast sample while a telemetry fix or an event could be dropped instead.
+This module owns what the journal holds: the `Journal` API the daemon calls from
+its loop (`record_fix`, `start_cast`, `record_sample`, `end_cast`, `record_event`,
+`record_sonar`), the rows and SQL, the session each run opens (its survey), and
+closing the casts a crash left open. Every call stamps its row (monotonic time,
+wall-clock UTC, whether the clock looked synchronised), hands it to the buffered
+writer (`writer.BufferedWriter`) and returns in about a microsecond; it never raises
+into the daemon, nor drops a cast sample while a fix or an event could go instead.
 
 With a `telemetry_rate_hz` (the daemon always gives one), fixes are thinned to
 that rate (`thinning.FixThinner`: the latest of each interval kept, the others
@@ -163,8 +162,7 @@ class Journal(BufferedWriter):
         self._unended: dict[int, Row] = {}
 
     @property
-    def session_id(self) -> int | None:
-        """This run's session (its survey's number), once the file has been opened."""
+    def session_id(self) -> int | None:  # this run's survey, once the file is open
         return self._session_id
 
     def health(self) -> JournalHealth:
@@ -221,10 +219,13 @@ class Journal(BufferedWriter):
                 self._append(row)
                 return
             with self._lock:
+                first = not thinner.holding  # the writer may sleep with no deadline
                 ready = thinner.offer(row, mono)
                 thinned = thinner.report(mono)
             if ready is not None:
                 self._append(ready)
+            elif first:
+                self._wake.set()  # to release the held fix once its interval is over
             if thinned:
                 self._report_thinned(thinned)
         except Exception as exc:
@@ -250,6 +251,11 @@ class Journal(BufferedWriter):
             rate_hz=self._thinner.rate_hz,
             note="fixes beyond the journal's telemetry rate: the latest of each interval is kept",
         )
+
+    def _holds_rows(self) -> bool:
+        # A held fix is released by a pass once its interval is over: keep the tick.
+        with self._lock:
+            return self._thinner is not None and self._thinner.holding
 
     def _before_pass(self) -> None:
         # The writer thread: a held fix whose interval is over goes to the buffer.

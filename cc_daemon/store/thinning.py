@@ -38,6 +38,11 @@ class FixThinner:
     def _slot(self, mono: float) -> int:
         return math.floor(mono * self.rate_hz)
 
+    @property
+    def holding(self) -> bool:
+        """A fix is held, for `due` to hand on once its interval is over."""
+        return self._held is not None
+
     def offer(self, row: Row, mono: float) -> Row | None:
         """Take a fix stamped `mono`; return the fix of an earlier interval now due, if any."""
         slot = self._slot(mono)

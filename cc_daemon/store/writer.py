@@ -239,8 +239,7 @@ class BufferedWriter(RowBuffer):
         if self._closed:
             self._errors.error("closed", "journal is closed; row not recorded", kind=row[0])
             return
-        fix = self._buffer_row(row)
-        if not fix and not self._wake.is_set():
+        if self._buffer_row(row) and not self._wake.is_set():
             self._wake.set()
         if not self._writer_running and self._thread is not None:
             self._restart_writer()
@@ -295,9 +294,9 @@ class BufferedWriter(RowBuffer):
                     if self._failing:
                         # Ignore wake-ups while failing: retry once a second, not per row.
                         self._stop.wait(RETRY_INTERVAL_S)
+                        self._wake.clear()
                     else:
-                        self._wake.wait(max(0.0, deadline - time.monotonic()))
-                    self._wake.clear()
+                        self._wait_for_rows(deadline, self._wake, self._stop)
                     stopping = self._stop.is_set()
                 deadline = time.monotonic() + FLUSH_INTERVAL_S
                 self._writer_pass()

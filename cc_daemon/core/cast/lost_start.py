@@ -18,6 +18,7 @@ Pure: told about readable and corrupt frames and the link, asked at `now`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 SILENCE_S = 3.0
@@ -55,6 +56,16 @@ class LostStartWatch:
         self._link_up = up
         if up and self._last_frame is not None:
             self._last_frame = now  # only a silence heard on a working cable counts
+
+    def next_deadline(self, cast_running: bool) -> float | None:
+        """The first `now` at which `check` would suspect a lost `M`, if nothing is
+        heard before it; None while nothing could (no corrupt frame, a cast, said)."""
+        last = self._last_frame
+        if self.suspected is not None or self._last_t is None or cast_running or not self._corrupt:
+            return None
+        if not self._link_up or last is None:
+            return None  # the link's coming back says `changed`, and the silence restarts
+        return math.nextafter(last + self.silence_s, math.inf)  # `check` wants more than
 
     def check(self, now: float, cast_running: bool) -> LostStart | None:
         """A new suspicion at `now` (once per silence), else None."""

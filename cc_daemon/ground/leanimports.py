@@ -1,0 +1,45 @@
+"""The daemon's imports without the optional extras it never uses.
+
+Two libraries import heavy optional modules when they find them installed:
+asyncio imports ssl (libssl and libcrypto: about 4.5 MiB of resident memory)
+for TLS connections, and structlog's `dev` module imports rich and pygments
+(about 30 ms and 4 MiB) for pretty tracebacks on a console. The daemon makes
+no TLS connection and logs JSON lines to journald; the console renderer asks
+for rich itself, only when it shows an exception (`logsetup`).
+
+This module owns importing such a library once, before anything else does,
+with the extras looking absent, so the library takes its own no-extra path. It
+must never hide a module from anyone else: each block lasts the one import,
+and a module someone already imported is never hidden.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Iterable
+
+
+def import_blind_to(module: str, hidden: Iterable[str]) -> None:
+    """Import `module` while importing any of `hidden` raises ImportError.
+
+    Does nothing if `module` or one of `hidden` is already imported: that
+    process pays nothing more and keeps the extra.
+    """
+    hidden = tuple(hidden)
+    if module in sys.modules or any(name in sys.modules for name in hidden):
+        return
+    for name in hidden:
+        sys.modules[name] = None  # type: ignore[assignment]  # `import name` raises ImportError
+    try:
+        importlib.import_module(module)
+    finally:
+        for name in hidden:
+            if name in sys.modules and sys.modules[name] is None:
+                del sys.modules[name]
+
+
+def import_daemon_libraries_lean() -> None:
+    """asyncio without ssl, structlog without rich: first thing in the daemon's run."""
+    import_blind_to("asyncio", ("ssl",))  # the daemon opens no TLS connection
+    import_blind_to("structlog.dev", ("rich",))  # the service logs JSON lines

@@ -1,0 +1,132 @@
+"""Idle means asleep (issue 22, docs/performance.md): no tick when nothing is due.
+
+The line watch sleeps until its machines' own deadlines (`LineWatch.next_deadline`),
+and the journal's writer thread until a row arrives. The whole daemon's wake-ups
+are counted end to end in tests/test_lean_imports.py.
+"""
+
+from __future__ import annotations
+
+import math
+import sqlite3
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from cc_daemon.config import load_settings
+from cc_daemon.core.cast.jog import Stick
+from cc_daemon.core.cast.lost_start import LostStartWatch
+from cc_daemon.core.protocol import Finished, Telemetry
+from cc_daemon.core.winch.status import WinchStatus
+from cc_daemon.daemon.line_watch import TICK_S, LineWatch
+from cc_daemon.store import Journal
+
+T = Telemetry(72, -37260579, 404506308, 702385, 8219, 100)
+
+
+def _watch(status: WinchStatus | None = None) -> tuple[LineWatch, list[bytes]]:
+    settings = load_settings(None, {"store": {"path": "unused.db"}})
+    written: list[bytes] = []
+    home = status or WinchStatus(depth_m=0.0, at_home=True, moving=False, fault=None)
+
+    def write(frame: bytes) -> bool:
+        written.append(frame)
+        return True
+
+    def ignore(*_: Any, **__: Any) -> None:
+        return None
+
+    watch = LineWatch(
+        settings,
+        write=write,
+        move_winch=ignore,
+        stop_winch=ignore,
+        winch_status=lambda: home,
+        journal_event=ignore,
+        notify=ignore,
+    )
+    return watch, written
+
+
+def test_nothing_is_due_when_nothing_happens():
+    watch, _ = _watch()
+    assert watch.next_deadline(10.0, cast_running=False) is None
+    watch.heard(T, 10.0)
+    assert watch.next_deadline(11.0, cast_running=False) is None
+
+
+def test_an_rf_repeat_is_due_at_its_own_time_and_set_wakes_the_watch():
+    watch, written = _watch()
+    watch.changed.clear()
+    watch.finished_sent(Finished(1, 0), 100.0)
+    assert watch.changed.is_set()  # the sleeping watch recomputes at once
+    after = watch.rf.after_s
+    assert watch.next_deadline(100.0, cast_running=False) == 100.0 + after
+    watch.tick(100.0 + after, cast_running=False)
+    assert len(written) == 1  # sent again exactly at the deadline
+    watch.heard(T, 100.0 + after + 0.5)
+    assert watch.next_deadline(101.0 + after, cast_running=False) is None
+
+
+def test_the_lost_m_deadline_is_the_first_moment_the_watch_suspects():
+    watch, _ = _watch()
+    watch.heard(T, 50.0)
+    watch.changed.clear()
+    watch.corrupt(50.0)
+    assert watch.changed.is_set()
+    deadline = watch.next_deadline(50.5, cast_running=False)
+    assert deadline is not None and 53.0 < deadline < 53.0 + 1e-9
+    assert watch.lost.check(53.0, cast_running=False) is None  # not yet: more than 3 s
+    assert watch.lost.check(deadline, cast_running=False) is not None
+    assert watch.next_deadline(deadline, cast_running=False) is None  # said once
+    assert watch.next_deadline(51.0, cast_running=True) is None
+
+
+def test_a_jog_is_watched_every_tick_while_it_runs():
+    down = WinchStatus(depth_m=2.0, at_home=False, moving=True, fault=None)
+    watch, _ = _watch(down)
+    watch.changed.clear()
+    watch.stick(Stick.UP, 20.0)
+    assert watch.jog.active and watch.changed.is_set()
+    assert watch.next_deadline(20.0, cast_running=False) == 20.0 + TICK_S
+    watch.stop_jog(20.05, "test")
+    assert watch.next_deadline(20.05, cast_running=False) is None
+
+
+def test_lost_start_watch_has_no_deadline_without_a_corrupt_frame():
+    watch = LostStartWatch(silence_s=3.0)
+    assert watch.next_deadline(cast_running=False) is None
+    watch.heard(0.0)
+    assert watch.next_deadline(cast_running=False) is None
+    watch.corrupt(0.0)
+    assert watch.next_deadline(cast_running=False) == math.nextafter(3.0, math.inf)
+
+
+def _voluntary_switches(native_id: int) -> int:
+    status = Path(f"/proc/self/task/{native_id}/status").read_text()
+    return int(status.split("voluntary_ctxt_switches:")[1].split()[0])
+
+
+def test_the_journal_writer_sleeps_until_a_row_arrives(tmp_path):
+    db = tmp_path / "j.db"
+    journal = Journal(db)
+    journal.open()
+    try:
+        journal.record_event("hello")
+        time.sleep(0.3)  # written at once: an event wakes the writer
+        writer = next(t for t in threading.enumerate() if t.name == "cc-daemon-journal")
+        assert writer.native_id is not None
+        before = _voluntary_switches(writer.native_id)
+        time.sleep(2.5)
+        assert _voluntary_switches(writer.native_id) - before == 0  # was one a second
+        started = time.monotonic()
+        journal.record_fix(T)  # a fix into an empty buffer wakes it too
+        while time.monotonic() - started < 2.0:
+            with sqlite3.connect(db) as conn:
+                if conn.execute("SELECT count(*) FROM fixes").fetchone()[0]:
+                    break
+            time.sleep(0.02)
+        assert time.monotonic() - started < 1.5
+    finally:
+        journal.close()
