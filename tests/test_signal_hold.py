@@ -8,10 +8,12 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import json
+import os
 import signal
 import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 from types import FrameType
 from typing import Any
 
@@ -231,3 +233,15 @@ def test_ctrl_c_during_help_is_no_traceback(restored: None) -> None:
     with pytest.raises(SystemExit):  # --version's own exit, not a KeyboardInterrupt
         main(["--version"], held=held)
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_daemon_run_ending_early_in_process_leaves_the_handlers_as_found(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    for name in [n for n in os.environ if n.startswith("CC_DAEMON_")]:
+        monkeypatch.delenv(name)
+    before = {signum: signal.getsignal(signum) for signum in (signal.SIGTERM, signal.SIGINT)}
+    # The default simulated winch is refused (exit 2) after the signals were held.
+    assert main(["--port", str(tmp_path / "tty"), "--db", str(tmp_path / "j.db")]) == 2
+    assert {signum: signal.getsignal(signum) for signum in before} == before

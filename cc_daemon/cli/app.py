@@ -346,6 +346,7 @@ def main(argv: Sequence[str] | None = None, *, held: SignalHold | None = None) -
     """`held`: the signals `cc_daemon.__main__` caught from the first instruction (caught
     here when called directly). The daemon keeps them; every other command gets its
     own handlers back, and what was held is raised again."""
+    owned = held is None  # called in-process (a test): leave the handlers as found
     held = held if held is not None else SignalHold.hold()
     daemon_mode = False
     try:
@@ -379,3 +380,5 @@ def main(argv: Sequence[str] | None = None, *, held: SignalHold | None = None) -
         if not daemon_mode:  # --help, a usage error: the handlers go back all the same
             with contextlib.suppress(KeyboardInterrupt):  # a Ctrl-C held meanwhile
                 held.release()
+        elif owned:
+            held.restore()

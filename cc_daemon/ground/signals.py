@@ -144,12 +144,19 @@ class SignalHold:
     def release(self) -> None:
         """Give back the handlers that were in place and raise what was held (a data
         command: as if nothing had been held)."""
+        pending = self.restore()
+        for signum in pending:
+            signal.raise_signal(signum)
+
+    def restore(self) -> dict[int, int]:
+        """Give back the handlers that were in place; return (and forget) what was held.
+        The daemon's end, when its command line was called in-process: the handlers
+        are left as they were found, and nothing is raised into the caller."""
         if self._released:
-            return
+            return {}
         self._released = True
         self._target = None
         for signum, previous in self._previous.items():
             signal.signal(signum, previous if previous is not None else signal.SIG_DFL)
         pending, self._pending = self._pending, {}
-        for signum in pending:
-            signal.raise_signal(signum)
+        return pending
