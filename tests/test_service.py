@@ -16,7 +16,7 @@ import structlog
 
 from cc_daemon.config import Settings
 from cc_daemon.core.cast.machine import CastMachine
-from cc_daemon.core.protocol import Ack, DepthReport, Finished, ProbePositionRequest
+from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished, ProbePositionRequest
 from cc_daemon.core.winch.physics import LinePhysics
 from cc_daemon.daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, Daemon
 from cc_daemon.daemon.systemd import SystemdNotifier
@@ -66,7 +66,9 @@ async def test_a_bug_in_the_cast_machine_stops_the_motor_and_keeps_alarming(
         assert await asyncio.wait_for(task, 5) == EXIT_PROBE_MAY_BE_DOWN
     messages = [r.message for r in received if r is not None]
     assert len(messages) == 4
-    assert all(isinstance(m, DepthReport) for m in messages)  # still reporting, never R-F
+    # Still reporting, never R-F; once the bug struck, as R-L (the fault, to the ground station).
+    assert all(isinstance(m, DepthReport | FaultReport) for m in messages)
+    assert isinstance(messages[-1], FaultReport) and isinstance(messages[-2], FaultReport)
     assert not any(isinstance(r.message, Finished) for r in port.received)
     assert status.phase != "idle"
     assert daemon._winch is not None and not daemon._winch.status().moving  # motor stopped

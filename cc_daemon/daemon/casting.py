@@ -8,7 +8,10 @@ by the Daemon's constructor.
 
 Guarantees kept here:
 - `R-F` is sent only from a `SendFinished` the machine produced from a status
-  saying the probe is home.
+  saying the probe is home, and always carries depth 0.
+- While the probe may be down and cannot come home (stranded, a refused
+  station, an internal error) the depth goes out as `R-L`, never `R-M`: the
+  firmware hands the code to the ground station and keeps the boat waiting.
 - A cast cancelled or failed stops the motor and says so loudly; after an
   internal error no `R-F` is ever sent and the depth keeps being reported.
 - Nothing in the journal can stop the boat (`_journaling`).
@@ -39,7 +42,7 @@ from cc_daemon.core.cast.plan import Phase
 from cc_daemon.core.cast.stations import StationMemory
 from cc_daemon.core.cast.timestamps import AutopilotTime
 from cc_daemon.core.protocol import Finished, StartMeasuring, as_dict, encode
-from cc_daemon.core.protocol.messages import CcMessage, DepthReport
+from cc_daemon.core.protocol.messages import CcMessage, DepthReport, FaultReport
 from cc_daemon.core.winch.status import Winch, WinchStatus
 from cc_daemon.daemon.line_watch import LineWatch
 from cc_daemon.daemon.sonde import SondeDuty
@@ -60,6 +63,7 @@ class ActiveCast:
         self.machine = machine
         self.task: asyncio.Task[None] | None = None
         self.reports = 0
+        self.fault_reports = 0  # R-L sent for this station
         # Set when the cast can make no progress without an operator: the probe
         # is stranded, or the cast task failed. Shutdown stops waiting then.
         self.settled = asyncio.Event()
@@ -137,6 +141,25 @@ class CastRunner:
         assert self._tasks is not None
         cast.task = self._tasks.create_task(self._run_cast(cast), name=f"cast-{cast.cast_id}")
 
+    def _refuse_cast(self, station: StartMeasuring, status: WinchStatus, now: float) -> None:
+        """No cast on a winch that cannot vouch for home (its homing failed, a fault
+        with the probe not verified home): the station is held with R-L at once
+        and every period, and released with R-F only at a verified home."""
+        fault = status.fault or "winch fault"
+        _log.critical(
+            "start-measuring refused: the winch cannot verify home; reporting the fault",
+            fault=fault,
+            depth_m=round(status.depth_m, 3),
+        )
+        self._journal_event("cast_refused", fault=fault, depth_m=round(status.depth_m, 3))
+        machine = CastMachine.refused(
+            started_at=now,
+            report_period_s=self.settings.cast.report_period_s,
+            depth_m=status.depth_m,
+            fault=fault,
+        )
+        self._start_cast(station, machine, now)
+
     async def _run_cast(self, cast: ActiveCast) -> None:
         machine = cast.machine
         winch = self._winch
@@ -195,7 +218,7 @@ class CastRunner:
             await self._clock.sleep_until(next_at)
             next_at += period
             depth = self._probe_depth()
-            self._send(DepthReport(self._now_ts(), self._depth_mm(depth)))
+            self._report_fault(cast, depth, "internal error: probe state unknown")
             _log.critical(
                 "PROBE STATE UNKNOWN after an internal error: no R-F will be sent; "
                 "the winch motor is stopped; operator intervention needed",
@@ -222,6 +245,11 @@ class CastRunner:
                         queue.extend(cast.machine.winch_error(now, f"{type(exc).__name__}: {exc}"))
                 case StopWinch(reason=reason):
                     self._stop_motor(reason)
+                case ReportDepth(depth_m=depth, phase=Phase.STRANDED):
+                    self._report_fault(cast, depth, cast.machine.winch_fault)
+                    with self._journaling("record_sample") as journal:
+                        if journal is not None:
+                            journal.record_sample(cast.cast_id, depth, str(Phase.STRANDED))
                 case ReportDepth(depth_m=depth, phase=phase):
                     cast.reports += 1
                     told = self._sonde.report_depth(depth, now) if self._sonde else depth
@@ -240,6 +268,17 @@ class CastRunner:
                         stranded_for_s=round(now - cast.machine.started_at),
                     )
         return commanded
+
+    def _report_fault(self, cast: ActiveCast, depth_m: float, fault: str | None) -> None:
+        """`R-L` with the best depth we have, in place of `R-M`: the firmware shows
+        the code to the ground station and keeps the boat at the station. The
+        first of a stranding is journaled; the alarm in the log goes with each."""
+        self._send(FaultReport(self._now_ts(), self._depth_mm(depth_m)))
+        cast.fault_reports += 1
+        if cast.fault_reports == 1:
+            self._journal_event(
+                "fault_reported", cast_id=cast.cast_id, depth_m=round(depth_m, 3), fault=fault
+            )
 
     def bottom_contact(self, depth_m: float) -> None:
         """The sonde says the probe is on the bottom: stop paying out, go on from there."""
@@ -267,6 +306,15 @@ class CastRunner:
                 )
         elif new is Phase.STRANDED:
             self._journal_event("cast_stranded", cast_id=cast.cast_id, reason=reason, depth_m=depth)
+        elif old is Phase.STRANDED:
+            _log.warning(
+                "stranded probe verified home: the fault is cleared, R-F goes",
+                cast_id=cast.cast_id,
+                fault_reports=cast.fault_reports,
+            )
+            self._journal_event(
+                "stranded_cleared", cast_id=cast.cast_id, fault_reports=cast.fault_reports
+            )
         else:
             _log.info("cast phase", cast_id=cast.cast_id, phase=str(new), depth_m=depth)
 
@@ -274,7 +322,8 @@ class CastRunner:
         # The machine produced SendFinished from a status saying the probe is
         # home, in this same step; reading the winch again here could only
         # disagree with the machine and leave a cast half-ended.
-        self._send(Finished(self._time.at(now), self._depth_mm(action.depth_m)))
+        # R-F means "home": its depth is 0, whatever small figure the winch gives.
+        self._send(Finished(self._time.at(now), 0))
         with self._journaling("end_cast") as journal:
             if journal is not None:
                 # The profile's last point: the probe home, when R-F went out.

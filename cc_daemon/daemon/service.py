@@ -32,7 +32,7 @@ from cc_daemon.core.cast.machine import (
     CastMachine,
     Outcome,
 )
-from cc_daemon.core.cast.plan import SkipCast, plan_cast
+from cc_daemon.core.cast.plan import Phase, SkipCast, plan_cast
 from cc_daemon.core.cast.stations import StationMemory
 from cc_daemon.core.cast.timestamps import AutopilotTime
 from cc_daemon.core.protocol import (
@@ -51,7 +51,7 @@ from cc_daemon.core.protocol import (
     as_dict,
 )
 from cc_daemon.core.status import DaemonStatus, Fix
-from cc_daemon.core.winch.status import Winch, WinchStatus
+from cc_daemon.core.winch.status import Winch, WinchStatus, refuses_casts, verified_home
 from cc_daemon.daemon.casting import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, ActiveCast, CastRunner
 from cc_daemon.daemon.line_watch import TICK_S, LineWatch
 from cc_daemon.daemon.preflight import make_journal
@@ -219,9 +219,24 @@ class Daemon(CastRunner):
                 if sonar_task:
                     sonar_task.cancel()
                 watch.cancel()
+            self._check_home_at_exit()
         finally:
             await self._close()
         return self._exit_code
+
+    def _check_home_at_exit(self) -> None:
+        """Exit 0 means the probe is home: a winch that cannot verify it says so."""
+        if self._exit_code != EXIT_OK or self._winch is None:
+            return
+        status = self._winch_status()
+        if not verified_home(status):
+            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
+            _log.critical(
+                "exiting with the probe NOT verified home: recover it by hand",
+                depth_m=round(status.depth_m, 3),
+                at_home=status.at_home,
+                fault=status.fault,
+            )
 
     def request_shutdown(self, *, immediate: bool = False) -> None:
         """Graceful: start no new cast, bring the probe home, send R-F, stop.
@@ -416,6 +431,7 @@ class Daemon(CastRunner):
             casts_aborted=self.casts_aborted,
             casts_skipped=self.casts_skipped,
             winch_fault=cast.machine.winch_fault if cast else None,
+            fault_reports=cast.fault_reports if cast else 0,
             port_losses=self.port_losses,
             last_fix=self.last_fix,
             winch=self._winch_status() if self._winch is not None else None,
@@ -488,6 +504,10 @@ class Daemon(CastRunner):
         cast = self._cast
         if cast is None:
             self._line.stick(stick, now)
+        elif cast.machine.phase is Phase.STRANDED and stick is Stick.UP:
+            # The safety pilot hauls a stranded probe in: a jog (dead-man's handle);
+            # the stranded cast ends, with R-F, only once the winch verifies home.
+            self._line.stick(stick, now)
         elif stick is Stick.UP:
             self._execute(cast, cast.machine.abort(now, "safety pilot: probe up (RC stick)"))
         else:
@@ -502,6 +522,9 @@ class Daemon(CastRunner):
             return
         self._send(Ack(self._time.at(now)))
         status = self._winch_status()
+        if refuses_casts(status):  # never a cast on a winch that cannot vouch for home
+            self._refuse_cast(station, status, now)
+            return
         if not status.at_home:
             # Down with no cast (a restart mid-cast, a hand-lowered probe): bring
             # it home first, reporting as a cast does; this station is not measured.
@@ -523,7 +546,7 @@ class Daemon(CastRunner):
                 since_s=round(now - done.finished_at, 1),
                 rearm_s=self.settings.cast.rearm_s,
             )
-            self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
+            self._send(Finished(self._time.at(now), 0))  # at home: checked above
             return
         bottom = station
         if self.sonar is not None:  # the freshest confident bottom of the two sonars
@@ -557,4 +580,4 @@ class Daemon(CastRunner):
                 )
         self.casts_skipped += 1
         self._stations.finished(station, now, cast_id)
-        self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
+        self._send(Finished(self._time.at(now), 0))  # the probe never left home

@@ -1,0 +1,113 @@
+"""A probe that may be down and cannot come home: R-L to the ground station, never
+R-F, until the winch verifies home again (issue 19). In-process daemon on the GPIO
+winch over mock pins and the simulated drum; the autopilot's end of a real pty."""
+
+from __future__ import annotations
+
+import asyncio
+import sqlite3
+import time
+from pathlib import Path
+from typing import Any
+
+import structlog
+
+from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished, ProbeUp
+from cc_daemon.daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN
+from cc_daemon.daemon.status_report import status_document
+from cc_daemon.sim.drum import DrumFaults
+from cc_daemon.sim.port import Received
+from tests.daemonkit import station
+from tests.gpiokit import gpio_rig
+from tests.test_gpio_daemon import Boat, _boat
+
+
+async def _until(boat: Boat, phase: str, timeout: float) -> list[Received]:
+    frames: list[Received] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and boat.daemon.snapshot().phase != phase:
+        got = await boat.port.receive(0.3)
+        if got is not None:
+            frames.append(got)
+    assert boat.daemon.snapshot().phase == phase, [r.message for r in frames]
+    return frames
+
+
+def _events(tmp_path: Path) -> list[tuple[str, str]]:
+    with sqlite3.connect(tmp_path / "j.db") as db:
+        return db.execute("SELECT kind, detail_json FROM events ORDER BY id").fetchall()
+
+
+async def test_stranded_hauling_in_sends_r_l_until_the_stick_brings_it_home(
+    tmp_path: Path,
+) -> None:
+    async with gpio_rig(faults=DrumFaults(jam_in_at_m=1.5)) as rig, _boat(tmp_path, rig) as boat:
+        with structlog.testing.capture_logs() as logs:
+            await boat.port.send(station())
+            before = await _until(boat, "stranded", 15)
+            assert not any(isinstance(r.message, Finished) for r in before)
+            stranded = [await boat.port.receive(1.5) for _ in range(3)]
+            # In place of R-M: R-L every period, carrying the depth the probe is stuck at.
+            faults = [r.message for r in stranded if r is not None]
+            assert faults and all(isinstance(m, FaultReport) for m in faults)
+            assert all(1300 <= m.depth_mm <= 1700 for m in faults)  # type: ignore[union-attr]
+            doc: dict[str, Any] = status_document(boat.daemon.status_inputs())
+            reported = doc["cast"]["fault_reported"]
+            assert reported["fault"].startswith("stall") and reported["r_l_sent"] >= 2
+            assert 1.3 <= reported["depth_m"] <= 1.7
+            # The line is freed; the safety pilot holds the stick up: home, then R-F, depth 0.
+            rig.drum.faults = DrumFaults()
+            finished: Finished | None = None
+            deadline = time.monotonic() + 15
+            while finished is None and time.monotonic() < deadline:
+                await boat.port.send(ProbeUp(7))
+                got = await boat.port.receive(0.5)
+                while got is not None and finished is None:
+                    if isinstance(got.message, Finished):
+                        finished = got.message
+                    got = await boat.port.receive(0.05)
+            assert finished is not None and finished.depth_mm == 0
+            assert rig.winch.status().at_home
+            boat.daemon.request_shutdown()
+            assert await asyncio.wait_for(boat.task, 10) == EXIT_OK
+    criticals = [e for e in logs if e["log_level"] == "critical"]
+    assert any("PROBE NOT HOME" in e["event"] for e in criticals)
+    kinds = [kind for kind, _ in _events(tmp_path)]
+    assert kinds.index("cast_stranded") < kinds.index("fault_reported")
+    assert kinds.index("fault_reported") < kinds.index("stranded_cleared")
+    assert kinds.count("fault_reported") == 1  # once per stranding, not every period
+
+
+async def test_a_winch_that_failed_to_home_refuses_every_cast_with_r_l(tmp_path: Path) -> None:
+    # The probe 2 m down at start, not homed (home_at_start off: the winch's own
+    # start-up fault; the witnesses' "homing failed" is refused the same way).
+    async with (
+        gpio_rig(line_m=2.0, start_up=False, home_at_start=False) as rig,
+        _boat(tmp_path, rig) as boat,
+    ):
+        status = rig.winch.status()
+        assert status.fault is not None and not status.at_home
+        await boat.port.send(station())
+        first = await boat.port.receive(1.0)
+        second = await boat.port.receive(0.5)
+        assert first is not None and first.message == Ack(100)
+        # R-O, then the fault at once: no cast, the motor never runs.
+        assert second is not None and isinstance(second.message, FaultReport)
+        more = [await boat.port.receive(1.5) for _ in range(2)]
+        assert all(r is not None and isinstance(r.message, FaultReport) for r in more)
+        assert rig.drum.motor() == (0, 0.0)
+        assert boat.daemon.snapshot().phase == "stranded"
+        # The autopilot asks where the probe is: answered; a second M starts nothing.
+        await boat.port.send(station(timestamp=130))
+        again = await boat.port.receive(1.0)
+        assert again is not None and again.message == Ack(130)
+        boat.daemon.request_shutdown()
+        assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+    received = [r.message for r in boat.port.received]
+    assert not any(isinstance(m, Finished | DepthReport) for m in received)
+    kinds = [kind for kind, _ in _events(tmp_path)]
+    assert "cast_refused" in kinds and "fault_reported" in kinds
+    with sqlite3.connect(tmp_path / "j.db") as db:
+        assert db.execute("SELECT count(*) FROM samples WHERE phase != 'stranded'").fetchone() == (
+            0,
+        )
