@@ -471,3 +471,18 @@ def test_bad_configuration_is_refused() -> None:
         AutopilotConfig(noise_margin_s=-1)
     with pytest.raises(ValueError, match="outage_grace_s"):
         AutopilotConfig(outage_grace_s=-1)
+
+
+def test_r_f_after_the_cable_returns_is_not_read_as_a_refusal() -> None:
+    # --drop-link-at 5: R-O, the cable out, every R-M lost, the repeated R-F arrives.
+    ap, t = _at_cast(AutopilotConfig(boat_speed_m_s=100.0, firmware="ucm-2023"))
+    ap.link_down(t + 0.5)
+    ap.link_up(t + 3.5)
+    ap.on_frame(t + 8.0, Finished(0, 0))
+    [skip] = [v for v in ap.violations if v.kind is ViolationKind.UNEXPECTED_SKIP]
+    assert skip.excused_by == "the cable was unplugged"
+    assert ap.problems == [] and ap.logs[0].verdict == "skipped"
+    # Without the cable pulled, R-F at once at a deep station is still a refusal.
+    ap, t = _at_cast(AutopilotConfig(boat_speed_m_s=100.0, firmware="ucm-2023"))
+    ap.on_frame(t + 8.0, Finished(0, 0))
+    assert [v.kind for v in ap.problems] == [ViolationKind.UNEXPECTED_SKIP]

@@ -213,3 +213,23 @@ def test_a_probe_stranded_with_r_l_halts_the_survey_with_its_own_exit_status() -
     )
     assert summary.stations[0].verdict == "stranded: R-L x4, no R-F"
     assert [v.excused_by for v in summary.violations] == ["the daemon reported the fault (R-L)"]
+
+
+def test_a_cast_the_journal_holds_is_measured_though_its_r_m_were_lost_on_the_cable() -> None:
+    from cc_daemon.sim.summary import JournalCast
+
+    mission = make_mission(2, 1)
+    autopilot = Autopilot(mission, AutopilotConfig(frame_period_s=0.5))
+    now = 0.0
+    while autopilot.phase is not Phase.REQUESTING:
+        autopilot.poll(now)
+        now += 0.5
+    autopilot.on_frame(now, Ack(0))
+    autopilot.link_down(now + 0.5)
+    autopilot.link_up(now + 3.5)
+    autopilot.on_frame(now + 8.0, Finished(0, 0))
+    run = Run(mission, autopilot, SimConsole(io.StringIO(), live=False))
+    casts = [JournalCast(1, 2.64, 2.64, "completed", None, 1)]
+    summary = build_summary(run, casts=casts, daemon_exit=0, db_path=None, log_path=None)
+    assert summary.stations[0].verdict == "measured" and summary.protocol_kept
+    assert any("the journal holds the cast, completed" in note for note in summary.notes)

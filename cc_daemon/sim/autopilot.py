@@ -444,10 +444,14 @@ class Autopilot:
         log.finish_depth_mm = message.depth_mm
         if self.config.check_plan:
             if log.reports == 0 and not log.station.too_shallow:
+                # With the cable out during the station, the R-M were lost on it: the
+                # R-F (or its repeat) that arrives after cannot tell a refusal.
+                since = log.acked_at if log.acked_at is not None else now
                 self._violation(
                     now,
                     ViolationKind.UNEXPECTED_SKIP,
                     f"R-F without a cast in {log.station.water_depth_m:.2f} m of water",
+                    excused_by=self._cable_out(since, now),
                 )
             elif log.reports > 0 and log.station.too_shallow:
                 self._violation(
@@ -550,14 +554,19 @@ class Autopilot:
         if station is not None:
             self.logs[self.index].violations.append(violation)
 
+    def _cable_out(self, since: float, now: float) -> str | None:
+        """The excuse of a cable pulled within [since, now] (and the reconnect after)."""
+        for outage in self._outages:
+            up = outage.up
+            end = float("inf") if up is None else up + self.config.outage_grace_s
+            if since <= end and now >= outage.down:
+                return "the cable was unplugged"
+        return None
+
     def _excuse(self, kind: ViolationKind, since: float, now: float) -> str | None:
         config = self.config
-        if kind in EXPLAINED_BY_INBOUND_LOSS:
-            for outage in self._outages:
-                up = outage.up
-                end = float("inf") if up is None else up + config.outage_grace_s
-                if since <= end and now >= outage.down:
-                    return "the cable was unplugged"
+        if kind in EXPLAINED_BY_INBOUND_LOSS and (cable := self._cable_out(since, now)):
+            return cable
         # A corrupt frame's bytes arrived after whatever came before it: its
         # window is exact. A missing answer may be the victim of a frame
         # mangled just before the window opened.

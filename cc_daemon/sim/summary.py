@@ -153,7 +153,14 @@ def build_summary(
         problems_here = [v for v in violations if v.station == number and not v.excused]
         ok = not problems_here and log.finished_at is not None
         outcome = recorded[-1].outcome if recorded else None
-        if ok and outcome == "aborted":
+        if ok and verdict.startswith("skipped") and outcome == "completed":
+            # The journal holds the cast; its R-M were lost while the cable was out.
+            verdict = "measured"
+            extra_notes.append(
+                f"S{number}: no R-M arrived (the cable was out) but the journal holds the "
+                f"cast, completed"
+            )
+        elif ok and outcome == "aborted":
             reason = recorded[-1].reason or "no reason given"
             verdict = f"aborted: {reason.removeprefix('winch fault: ')}"
         elif ok and number in run.faults and log.reports:
