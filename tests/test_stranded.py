@@ -5,6 +5,7 @@ winch over mock pins and the simulated drum; the autopilot's end of a real pty."
 from __future__ import annotations
 
 import asyncio
+import os
 import sqlite3
 import time
 from pathlib import Path
@@ -12,14 +13,17 @@ from typing import Any
 
 import structlog
 
+from cc_daemon.cli.app import main
 from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished, ProbeUp
-from cc_daemon.daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN
+from cc_daemon.daemon.control_server import Peer, authorised
+from cc_daemon.daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, Daemon
 from cc_daemon.daemon.status_report import status_document
 from cc_daemon.sim.drum import DrumFaults
-from cc_daemon.sim.port import Received
+from cc_daemon.sim.port import FramePort, Received
+from cc_daemon.sim.pty import PtyPair
 from tests.daemonkit import station
 from tests.gpiokit import gpio_rig
-from tests.test_gpio_daemon import Boat, _boat
+from tests.test_gpio_daemon import Boat, _boat, _settings
 
 
 async def _until(boat: Boat, phase: str, timeout: float) -> list[Received]:
@@ -111,3 +115,56 @@ async def test_a_winch_that_failed_to_home_refuses_every_cast_with_r_l(tmp_path:
         assert db.execute("SELECT count(*) FROM samples WHERE phase != 'stranded'").fetchone() == (
             0,
         )
+
+
+async def test_an_operator_releases_a_station_the_winch_cannot_verify(tmp_path: Path) -> None:
+    # A probe jammed at 1.5 m hauling in: stranded, R-L. The operator has seen it on
+    # board (say the switch is broken): `cc-daemon release` through the control socket.
+    status_path = tmp_path / "run" / "status.sock"
+    status_path.parent.mkdir()
+    settings = _settings(tmp_path, tmp_path / "tty")
+    settings = settings.model_copy(
+        update={"status": settings.status.model_copy(update={"path": status_path})}
+    )
+    control = status_path.with_name("control.sock")
+    async with gpio_rig(faults=DrumFaults(jam_in_at_m=1.5)) as rig:
+        with PtyPair(tmp_path / "tty") as pty:
+            daemon = Daemon(settings, winch=rig.winch)
+            port = await FramePort.over_fd(pty.master_fd)
+            task = asyncio.create_task(daemon.run())
+            await asyncio.wait_for(daemon.ready.wait(), 5)
+            boat = Boat(daemon, port, task)
+            args = ["release", "--reason", "probe seen on deck", "--socket", str(control)]
+            for _ in range(50):  # the control socket is bound by its own task
+                if control.exists():
+                    break
+                await asyncio.sleep(0.05)
+            assert oct(control.stat().st_mode & 0o777) == "0o660"
+            # Nothing stranded yet: refused, and nothing is sent.
+            assert await asyncio.to_thread(main, args) == 1
+            await port.send(station())
+            await _until(boat, "stranded", 15)
+            assert await asyncio.to_thread(main, args) == 0
+            got = await port.receive(3.0)
+            while got is not None and not isinstance(got.message, Finished):
+                got = await port.receive(3.0)
+            assert got is not None and got.message.depth_mm == 0  # type: ignore[union-attr]
+            assert daemon.snapshot().phase == "idle"
+            daemon.request_shutdown()
+            # The winch still cannot verify home: the exit says so.
+            assert await asyncio.wait_for(task, 10) == EXIT_PROBE_MAY_BE_DOWN
+            await port.close()
+    events = dict(_events(tmp_path))
+    assert "probe seen on deck" in events["operator_release"]
+    with sqlite3.connect(tmp_path / "j.db") as db:
+        [(outcome, reason)] = db.execute("SELECT outcome, reason FROM casts").fetchall()
+    assert outcome == "aborted" and reason == "released by an operator: probe seen on deck"
+
+
+def test_only_root_the_daemon_s_user_or_the_socket_s_group_may_release() -> None:
+    me = os.getuid()
+    assert authorised(Peer(1, me, 4242), socket_gid=4343)
+    assert authorised(Peer(1, 0, 4242), socket_gid=4343)
+    stranger = 54321 if me != 54321 else 54322  # no such user: no supplementary groups
+    assert authorised(Peer(1, stranger, 4343), socket_gid=4343)  # its primary group
+    assert not authorised(Peer(1, stranger, 4242), socket_gid=4343)

@@ -11,6 +11,7 @@
     cc-daemon doctor                         check this Pi is ready to run the service
     cc-daemon simulate-sonde --port PATH     the simulated sonde alone, on a pty at PATH
     cc-daemon winch status|home|down|up      the GPIO winch by hand (jog, home, calibrate)
+    cc-daemon release --reason TEXT          release a stranded station (probe seen on board)
     cc-daemon simulate-sonar --port P        the simulated Ping1D echosounder alone
 
 Exit status: 0 success; 1 a tool found problems (corrupt frames, a protocol
@@ -158,6 +159,7 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 def build_parser() -> argparse.ArgumentParser:
     from cc_daemon.cli import data as datacli
+    from cc_daemon.cli import release as releasecli
     from cc_daemon.cli import sonde as sondecli
     from cc_daemon.cli import winch as winchcli
     from cc_daemon.cli.doctor import command as doctor_cli
@@ -188,6 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     sondecli.add_command(sub)
     simulate_sonde.add_command(sub)
     winchcli.add_command(sub)
+    releasecli.add_command(sub)
     sonar_cli.add_commands(sub)
     return parser
 

@@ -278,6 +278,32 @@ class CastRunner:
                 "fault_reported", cast_id=cast.cast_id, depth_m=round(depth_m, 3), fault=fault
             )
 
+    def release_station(self, peer: object, reason: str) -> tuple[bool, str]:
+        """`cc-daemon release`: an operator who has seen the probe on board ends a
+        stranded station (R-F, depth 0). Nothing else: no cast is stranded, no release."""
+        cast = self._cast
+        if cast is None or cast.machine.phase is not Phase.STRANDED:
+            _log.warning("operator release refused: no stranded station", peer=str(peer))
+            return False, "no stranded station to release"
+        depth = round(cast.machine.depth_m, 3)
+        _log.critical(
+            "OPERATOR RELEASE: the station is released with the winch unable to verify home",
+            cast_id=cast.cast_id,
+            reason=reason,
+            peer=str(peer),
+            winch_depth_m=depth,
+        )
+        self._journal_event(
+            "operator_release",
+            cast_id=cast.cast_id,
+            reason=reason,
+            peer=str(peer),
+            winch_depth_m=depth,
+            fault=cast.machine.winch_fault,
+        )
+        self._execute(cast, cast.machine.operator_release(reason))
+        return True, f"station released: R-F sent (cast {cast.cast_id})"
+
     def bottom_contact(self, depth_m: float) -> None:
         """The sonde says the probe is on the bottom: stop paying out, go on from there."""
         cast = self._cast

@@ -196,6 +196,9 @@ class Daemon(CastRunner):
                 status = tasks.create_task(
                     self._keep_running("status", self._serve_status), name="status"
                 )
+                control = tasks.create_task(
+                    self._keep_running("control", self._serve_control), name="control"
+                )
                 sonde = self._sonde and tasks.create_task(
                     self._keep_running("sonde", self._sonde.run), name="sonde"
                 )
@@ -214,6 +217,7 @@ class Daemon(CastRunner):
                 link_task.cancel()
                 housekeeping.cancel()
                 status.cancel()
+                control.cancel()
                 if sonde:
                     sonde.cancel()
                 if sonar_task:
@@ -362,6 +366,11 @@ class Daemon(CastRunner):
         from cc_daemon.daemon.status_server import serve_status
 
         await serve_status(self.settings.status, lambda: status_document(self.status_inputs()))
+
+    async def _serve_control(self) -> None:
+        from cc_daemon.daemon.control_server import serve_control
+
+        await serve_control(self.settings.status, self.release_station)
 
     def status_inputs(self) -> StatusInputs:
         """What the status document is made of, as plain values taken now."""

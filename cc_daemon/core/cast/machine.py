@@ -228,6 +228,18 @@ class CastMachine:
         self._abort(out, now, reason)
         return out
 
+    def operator_release(self, reason: str) -> list[Action]:
+        """An operator who has seen the probe on board ends a stranded station
+        (a broken witness: the winch can never verify home). STRANDED only."""
+        out: list[Action] = []
+        if self.phase is not Phase.STRANDED:
+            return out
+        self.abort_reason = f"released by an operator: {reason}"
+        out.append(StopWinch("operator release"))
+        self._enter(out, Phase.FINISHED, self.abort_reason)
+        out.append(SendFinished(0.0, self.outcome, self.abort_reason, Phase.STRANDED))
+        return out
+
     def bottom_contact(self, now: float, depth_m: float) -> list[Action]:
         """The probe touched bottom while paying out: stop there and go on with the
         cast from there (the legs below are dropped; the bottom dwell and the
