@@ -43,12 +43,13 @@ from cc_daemon.core.cast.stations import StationMemory
 from cc_daemon.core.cast.timestamps import AutopilotTime
 from cc_daemon.core.protocol import Finished, StartMeasuring, as_dict, encode
 from cc_daemon.core.protocol.messages import CcMessage, DepthReport, FaultReport
-from cc_daemon.core.winch.status import Winch, WinchStatus
+from cc_daemon.core.winch.status import Winch, WinchStatus, verified_home
 from cc_daemon.daemon.line_watch import LineWatch
 from cc_daemon.daemon.sonde import SondeDuty
 from cc_daemon.drivers.link import SerialLink
 from cc_daemon.ground.clock import Clock
 from cc_daemon.store import Journal
+from cc_daemon.store.interrupted import InterruptedCast
 
 _log = structlog.get_logger("cc_daemon.service")
 
@@ -90,6 +91,7 @@ class CastRunner:
     _line: LineWatch
     _sonde: SondeDuty | None
     _last_depth_m: float
+    _interrupted: list[InterruptedCast]
 
     def _winch_status(self) -> WinchStatus:
         """The winch's status; if the backend fails, a faulted status at the last depth."""
@@ -140,6 +142,27 @@ class CastRunner:
         )
         assert self._tasks is not None
         cast.task = self._tasks.create_task(self._run_cast(cast), name=f"cast-{cast.cast_id}")
+
+    def _release_interrupted(self) -> None:
+        """The link is up: free each station a killed run left the boat waiting at
+        (`daemon.restart`): R-F at a verified home, else R-L until there."""
+        pending, self._interrupted = self._interrupted, []
+        for interrupted in pending:
+            status = self._winch_status()
+            if verified_home(status) and self._cast is None:
+                self._send(Finished(self._now_ts(), 0))
+                _log.warning(
+                    "station of the interrupted cast released: the probe is home, R-F sent",
+                    cast_id=interrupted.cast_id,
+                )
+                self._journal_event("cast_recovered", cast_id=interrupted.cast_id, rf_sent=True)
+            elif self._cast is None:
+                station = StartMeasuring(0, interrupted.lon_e7, interrupted.lat_e7, 0, 0, 0)
+                fault = status.fault or f"probe {status.depth_m:.2f} m down after a restart"
+                self._refuse_cast(station, status._replace(fault=fault), self._clock.monotonic())
+                self._journal_event(
+                    "cast_recovered", cast_id=interrupted.cast_id, rf_sent=False, held_by_r_l=True
+                )
 
     def _refuse_cast(self, station: StartMeasuring, status: WinchStatus, now: float) -> None:
         """No cast on a winch that cannot vouch for home (its homing failed, a fault

@@ -55,6 +55,7 @@ from cc_daemon.core.winch.status import Winch, WinchStatus, refuses_casts, verif
 from cc_daemon.daemon.casting import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, ActiveCast, CastRunner
 from cc_daemon.daemon.line_watch import TICK_S, LineWatch
 from cc_daemon.daemon.preflight import make_journal
+from cc_daemon.daemon.restart import note_interrupted
 from cc_daemon.daemon.simgate import simulation_warning
 from cc_daemon.daemon.simulators import NO_SIMULATORS, Simulators
 from cc_daemon.daemon.sonde import SondeDuty, make_sonde
@@ -64,6 +65,7 @@ from cc_daemon.drivers.winch.factory import make_winch, prepare_winch
 from cc_daemon.ground.clock import Clock, SystemClock
 from cc_daemon.ground.logsetup import flush_rate_limited, output_loss
 from cc_daemon.store import Journal
+from cc_daemon.store.interrupted import InterruptedCast
 
 if TYPE_CHECKING:
     from cc_daemon.daemon.sonar import OnboardSonar
@@ -150,6 +152,7 @@ class Daemon(CastRunner):
         self._last_depth_m = 0.0
         self._output_loss_reported = False
         self._sonde: SondeDuty | None = None
+        self._interrupted: list[InterruptedCast] = []  # stations a killed run left held
 
     # ------------------------------------------------------------ lifecycle
 
@@ -169,6 +172,7 @@ class Daemon(CastRunner):
             for cast_id in self._journal.open():
                 _log.warning("cast left unfinished by a previous run", cast_id=cast_id)
         self._journal.record_event("daemon_started", port=self.settings.serial.port)
+        self._interrupted = note_interrupted(self._journal)
         self._sonde = make_sonde(
             self.settings, clock=self._clock, journal=self._journal, view=self.snapshot,
             on_bottom_contact=self.bottom_contact, simulator=self._simulators.sonde,
@@ -460,6 +464,7 @@ class Daemon(CastRunner):
         if up:
             kind = "port_regained" if self.port_losses else "port_opened"
             self._journal_event(kind, port=self.link.port)
+            self._release_interrupted()  # a station the previous run left the boat at
             self.ready.set()
             self._notifier.notify(f"STATUS=answering on {self.link.port}")
         else:

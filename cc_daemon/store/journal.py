@@ -157,6 +157,7 @@ class Journal(BufferedWriter):
         # Writer only (open() uses them before the writer starts).
         self._session_id: int | None = None
         self._recovered = False
+        self.recovered: list[int] = []  # casts this open found with no end (a crash)
         self._id_map: dict[int, int] = {}
         # Start rows of casts committed but not yet ended, by the id they were
         # recorded with: written again if the run moves to a fresh file.
@@ -461,7 +462,8 @@ class Journal(BufferedWriter):
                 reached_depth_m=reached,
                 path=str(path),
             )
-        return [cast_id for cast_id, _, _ in prepared]
+        self.recovered = [cast_id for cast_id, _, _ in prepared]
+        return self.recovered
 
     def _committed(self, rows: list[Row], refused: set[int], new_ids: dict[int, int]) -> None:
         self._id_map.update(new_ids)
