@@ -5,6 +5,7 @@ winch over mock pins and the simulated drum; the autopilot's end of a real pty."
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import sqlite3
 import time
@@ -21,6 +22,7 @@ from cc_daemon.daemon.status_report import status_document
 from cc_daemon.sim.drum import DrumFaults
 from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
+from cc_daemon.store import Journal
 from tests.daemonkit import station
 from tests.gpiokit import gpio_rig
 from tests.test_gpio_daemon import Boat, _boat, _settings
@@ -168,3 +170,33 @@ def test_only_root_the_daemon_s_user_or_the_socket_s_group_may_release() -> None
     stranger = 54321 if me != 54321 else 54322  # no such user: no supplementary groups
     assert authorised(Peer(1, stranger, 4343), socket_gid=4343)  # its primary group
     assert not authorised(Peer(1, stranger, 4242), socket_gid=4343)
+
+
+async def test_a_restart_that_cannot_verify_home_holds_the_interrupted_station_with_r_l(
+    tmp_path: Path,
+) -> None:
+    # The previous run died mid-cast (no end, no daemon_stopped) with the probe 2 m down.
+    journal = Journal(tmp_path / "j.db")
+    journal.open()
+    cast_id = journal.start_cast(station(), planned_depth_m=3.0, mode="continuous", plan={})
+    journal.record_sample(cast_id, 2.0, "descending")
+    journal.close()
+    # This run's winch is not homed (home_at_start off): it cannot verify home.
+    async with (
+        gpio_rig(line_m=2.0, start_up=False, home_at_start=False) as rig,
+        _boat(tmp_path, rig) as boat,
+    ):
+        # No M comes: the firmware is still waiting at the station. R-L, never R-F.
+        got = [await boat.port.receive(1.5) for _ in range(2)]
+        assert all(r is not None and isinstance(r.message, FaultReport) for r in got)
+        assert boat.daemon.snapshot().phase == "stranded"
+        boat.daemon.request_shutdown()
+        assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+    assert not any(isinstance(r.message, Finished) for r in boat.port.received)
+    events = _events(tmp_path)
+    kinds = [kind for kind, _ in events]
+    assert "daemon_died" in kinds
+    interrupted = json.loads(dict(events)["cast_interrupted"])
+    assert interrupted == {"cast_id": cast_id, "last_depth_m": 2.0, "samples": 1}
+    recovered = json.loads(dict(events)["cast_recovered"])
+    assert recovered == {"cast_id": cast_id, "rf_sent": False, "held_by_r_l": True}
