@@ -200,3 +200,41 @@ async def test_a_restart_that_cannot_verify_home_holds_the_interrupted_station_w
     assert interrupted == {"cast_id": cast_id, "last_depth_m": 2.0, "samples": 1}
     recovered = json.loads(dict(events)["cast_recovered"])
     assert recovered == {"cast_id": cast_id, "rf_sent": False, "held_by_r_l": True}
+
+
+async def test_winch_home_with_the_daemon_running_hauls_a_stranded_probe_in(
+    tmp_path: Path,
+) -> None:
+    status_path = tmp_path / "run" / "status.sock"
+    status_path.parent.mkdir()
+    config = tmp_path / "cc-daemon.toml"
+    config.write_text(f'[status]\npath = "{status_path}"\n')
+    settings = _settings(tmp_path, tmp_path / "tty")
+    settings = settings.model_copy(
+        update={"status": settings.status.model_copy(update={"path": status_path})}
+    )
+    async with gpio_rig(faults=DrumFaults(jam_in_at_m=1.5)) as rig:
+        with PtyPair(tmp_path / "tty") as pty:
+            daemon = Daemon(settings, winch=rig.winch)
+            port = await FramePort.over_fd(pty.master_fd)
+            task = asyncio.create_task(daemon.run())
+            await asyncio.wait_for(daemon.ready.wait(), 5)
+            args = ["winch", "home", "--config", str(config)]
+            await port.send(station())
+            await _until(Boat(daemon, port, task), "stranded", 15)
+            # Still jammed: the daemon tries, stalls again, stays stranded; no R-F.
+            assert await asyncio.to_thread(main, args) == 0
+            await asyncio.sleep(1.5)
+            assert daemon.snapshot().phase == "stranded"
+            rig.drum.faults = DrumFaults()  # the line freed
+            assert await asyncio.to_thread(main, args) == 0
+            got = await port.receive(5.0)
+            while got is not None and not isinstance(got.message, Finished):
+                got = await port.receive(5.0)
+            assert got is not None and got.message.depth_mm == 0  # type: ignore[union-attr]
+            assert rig.winch.status().at_home
+            daemon.request_shutdown()
+            assert await asyncio.wait_for(task, 10) == EXIT_OK
+            await port.close()
+    kinds = [kind for kind, _ in _events(tmp_path)]
+    assert kinds.count("operator_haul_in") == 2 and "stranded_cleared" in kinds

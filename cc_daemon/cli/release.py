@@ -44,14 +44,20 @@ def run(args: argparse.Namespace) -> int:
             settings = load_settings(args.config, {}).status
         path = control_path(client_socket_path(settings))
     try:
-        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
-            sock.settimeout(TIMEOUT_S)
-            sock.connect(str(path))
-            sock.sendall(f"release {' '.join(args.reason.split())}\n".encode())
-            reply = sock.makefile("rb").readline()
+        answer = ask_daemon(path, f"release {' '.join(args.reason.split())}")
     except OSError as exc:
         print(f"cc-daemon release: cannot reach the daemon at {path}: {exc}")
         return 2
-    answer = json.loads(reply) if reply else {"ok": False, "message": "no answer"}
     print(f"cc-daemon release: {answer['message']}")
     return 0 if answer["ok"] else 1
+
+
+def ask_daemon(path: Path, line: str) -> dict[str, object]:
+    """One request on the control socket, its JSON answer. Raises OSError."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(TIMEOUT_S)
+        sock.connect(str(path))
+        sock.sendall(line.encode() + b"\n")
+        reply = sock.makefile("rb").readline()
+    answer = json.loads(reply) if reply else {"ok": False, "message": "no answer"}
+    return dict(answer)

@@ -301,6 +301,20 @@ class CastRunner:
                 "fault_reported", cast_id=cast.cast_id, depth_m=round(depth_m, 3), fault=fault
             )
 
+    def haul_home(self, peer: object, reason: str) -> tuple[bool, str]:
+        """`cc-daemon winch home` with the daemon running: haul a stranded probe in.
+        The station ends (R-F) only if the winch then verifies home."""
+        cast = self._cast
+        if cast is None or cast.machine.phase is not Phase.STRANDED or self._winch is None:
+            return False, "no stranded probe to haul in (stop the daemon to drive the winch)"
+        _log.warning("operator: hauling the stranded probe in", peer=str(peer), reason=reason)
+        self._journal_event("operator_haul_in", cast_id=cast.cast_id, peer=str(peer))
+        try:
+            self._winch.move_to(0.0)
+        except Exception as exc:
+            return False, f"the winch refused: {type(exc).__name__}: {exc}"
+        return True, "hauling the probe in: R-F goes once the winch verifies home"
+
     def release_station(self, peer: object, reason: str) -> tuple[bool, str]:
         """`cc-daemon release`: an operator who has seen the probe on board ends a
         stranded station (R-F, depth 0). Nothing else: no cast is stranded, no release."""

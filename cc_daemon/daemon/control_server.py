@@ -5,6 +5,9 @@ verify home, and the daemon holds the station with `R-L` for ever. An operator
 who has seen the probe on board releases it with `cc-daemon release --reason
 TEXT`: this socket, `control.sock` beside the status socket, takes one line
 `release <reason>` and answers one line of JSON (`{"ok": ..., "message": ...}`).
+`home` asks the daemon to haul a stranded probe in (`cc-daemon winch home`
+while the daemon runs): the station ends, with R-F, only if the winch then
+verifies home.
 
 Who may use it: the socket is mode 0660 (the daemon's user and its group, the
 service's admin group), and the peer's credentials (SO_PEERCRED) are checked
@@ -52,7 +55,7 @@ class Peer(NamedTuple):
     gid: int
 
 
-# (peer, reason) -> (released, message)
+# (peer, reason) -> (done, message)
 Release = Callable[[Peer, str], tuple[bool, str]]
 
 
@@ -80,9 +83,10 @@ def authorised(peer: Peer, socket_gid: int) -> bool:
 
 
 class ControlServer:
-    def __init__(self, path: Path, release: Release) -> None:
+    def __init__(self, path: Path, release: Release, home: Release | None = None) -> None:
         self.path = path
         self._release = release
+        self._home = home
         self._server: asyncio.Server | None = None
 
     async def start(self) -> None:
@@ -121,9 +125,12 @@ class ControlServer:
         text = line[:MAX_REQUEST].decode("utf-8", "replace").strip()
         verb, _, reason = text.partition(" ")
         reason = reason.strip()
-        if verb != "release" or not reason:
-            return {"ok": False, "message": "expected one line: release <reason>"}
-        ok, message = self._release(peer, reason)
+        if verb == "home" and self._home is not None:
+            ok, message = self._home(peer, reason or "operator request")
+        elif verb == "release" and reason:
+            ok, message = self._release(peer, reason)
+        else:
+            return {"ok": False, "message": "expected one line: release <reason>, or home"}
         return {"ok": ok, "message": message}
 
 
@@ -134,13 +141,15 @@ def _group_name(gid: int) -> str:
         return str(gid)
 
 
-async def serve_control(settings: StatusSettings, release: Release) -> None:
+async def serve_control(
+    settings: StatusSettings, release: Release, home: Release | None = None
+) -> None:
     """The daemon's control duty, beside the status socket (none without one)."""
     status_path = daemon_socket_path(settings) if settings.enabled else None
     if status_path is None:
         await asyncio.Future()
         return
-    server = ControlServer(control_path(status_path), release)
+    server = ControlServer(control_path(status_path), release, home)
     try:
         await server.start()
         await asyncio.Future()

@@ -374,7 +374,7 @@ class Daemon(CastRunner):
     async def _serve_control(self) -> None:
         from cc_daemon.daemon.control_server import serve_control
 
-        await serve_control(self.settings.status, self.release_station)
+        await serve_control(self.settings.status, self.release_station, self.haul_home)
 
     def status_inputs(self) -> StatusInputs:
         """What the status document is made of, as plain values taken now."""
