@@ -15,6 +15,7 @@ from typing import Any
 import structlog
 
 from cc_daemon.cli.app import main
+from cc_daemon.cli.status.view import status_lines
 from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished, ProbeUp
 from cc_daemon.daemon.control_server import Peer, authorised
 from cc_daemon.daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, Daemon
@@ -61,6 +62,8 @@ async def test_stranded_hauling_in_sends_r_l_until_the_stick_brings_it_home(
             reported = doc["cast"]["fault_reported"]
             assert reported["fault"].startswith("stall") and reported["r_l_sent"] >= 2
             assert 1.3 <= reported["depth_m"] <= 1.7
+            words = dict(status_lines(doc))  # what `cc-daemon status` prints
+            assert "R-L sent to the autopilot" in words["STRANDED"]
             # The line is freed; the safety pilot holds the stick up: home, then R-F, depth 0.
             rig.drum.faults = DrumFaults()
             finished: Finished | None = None
