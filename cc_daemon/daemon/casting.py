@@ -301,6 +301,25 @@ class CastRunner:
                 "fault_reported", cast_id=cast.cast_id, depth_m=round(depth_m, 3), fault=fault
             )
 
+    def _check_home_at_exit(self) -> None:
+        """Exit 0 means the probe is home: a winch that cannot verify it says so."""
+        if self._exit_code != EXIT_OK or self._winch is None:
+            return
+        status = self._winch_status()
+        if not verified_home(status):
+            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
+            _log.critical(
+                "exiting with the probe NOT verified home: recover it by hand",
+                depth_m=round(status.depth_m, 3),
+                at_home=status.at_home,
+                fault=status.fault,
+            )
+
+    async def _serve_control(self) -> None:
+        from cc_daemon.daemon.control_server import serve_control
+
+        await serve_control(self.settings.status, self.release_station, self.haul_home)
+
     def haul_home(self, peer: object, reason: str) -> tuple[bool, str]:
         """`cc-daemon winch home` with the daemon running: haul a stranded probe in.
         The station ends (R-F) only if the winch then verifies home."""

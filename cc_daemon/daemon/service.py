@@ -51,7 +51,7 @@ from cc_daemon.core.protocol import (
     as_dict,
 )
 from cc_daemon.core.status import DaemonStatus, Fix
-from cc_daemon.core.winch.status import Winch, WinchStatus, refuses_casts, verified_home
+from cc_daemon.core.winch.status import Winch, WinchStatus, refuses_casts
 from cc_daemon.daemon.casting import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, ActiveCast, CastRunner
 from cc_daemon.daemon.line_watch import TICK_S, LineWatch
 from cc_daemon.daemon.preflight import make_journal
@@ -232,20 +232,6 @@ class Daemon(CastRunner):
             await self._close()
         return self._exit_code
 
-    def _check_home_at_exit(self) -> None:
-        """Exit 0 means the probe is home: a winch that cannot verify it says so."""
-        if self._exit_code != EXIT_OK or self._winch is None:
-            return
-        status = self._winch_status()
-        if not verified_home(status):
-            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
-            _log.critical(
-                "exiting with the probe NOT verified home: recover it by hand",
-                depth_m=round(status.depth_m, 3),
-                at_home=status.at_home,
-                fault=status.fault,
-            )
-
     def request_shutdown(self, *, immediate: bool = False) -> None:
         """Graceful: start no new cast, bring the probe home, send R-F, stop.
 
@@ -370,11 +356,6 @@ class Daemon(CastRunner):
         from cc_daemon.daemon.status_server import serve_status
 
         await serve_status(self.settings.status, lambda: status_document(self.status_inputs()))
-
-    async def _serve_control(self) -> None:
-        from cc_daemon.daemon.control_server import serve_control
-
-        await serve_control(self.settings.status, self.release_station, self.haul_home)
 
     def status_inputs(self) -> StatusInputs:
         """What the status document is made of, as plain values taken now."""
