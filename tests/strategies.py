@@ -20,6 +20,7 @@ from cc_daemon.core.errors import FieldError
 from cc_daemon.core.protocol import (
     Ack,
     DepthReport,
+    FaultReport,
     Finished,
     Message,
     ProbeDown,
@@ -70,17 +71,20 @@ acks = st.builds(Ack, timestamps)
 depth_reports = st.builds(DepthReport, timestamps, depth_mm)
 finished = st.builds(Finished, timestamps, depth_mm)
 probe_positions = st.builds(ProbePosition, timestamps, depth_mm)
+fault_reports = st.builds(FaultReport, timestamps, depth_mm)
 
 autopilot_messages: st.SearchStrategy[Message] = st.one_of(
     telemetry, start_measuring, probe_requests, probe_ups, probe_downs
 )
-cc_messages: st.SearchStrategy[Message] = st.one_of(acks, depth_reports, finished, probe_positions)
+cc_messages: st.SearchStrategy[Message] = st.one_of(
+    acks, depth_reports, finished, probe_positions, fault_reports
+)
 messages: st.SearchStrategy[Message] = st.one_of(autopilot_messages, cc_messages)
 
 # ------------------------------------------------------------------ garbage
 
 SYNCS = b"PR"
-TYPE_BYTES = b"TMSGOFPUD"
+TYPE_BYTES = b"TMSGOFPUDL"
 
 
 @st.composite
@@ -183,6 +187,7 @@ CC_FRAMES: dict[bytes, tuple[int, type[Any]]] = {
     b"RM": (8, DepthReport),
     b"RF": (8, Finished),
     b"RP": (8, ProbePosition),
+    b"RL": (8, FaultReport),
 }
 
 

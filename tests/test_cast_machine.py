@@ -230,3 +230,27 @@ def test_safety_invariants_hold_for_any_cast(
     for t, _, _ in run.reports:
         k = (t - START) / period
         assert k == pytest.approx(round(k), abs=1e-6)
+
+
+def test_a_refused_station_reports_the_fault_at_once_and_ends_only_at_a_verified_home() -> None:
+    from cc_daemon.core.cast.machine import SendFinished
+    from cc_daemon.core.winch.status import refuses_casts, verified_home
+
+    failed = WinchStatus(2.0, False, False, "homing failed: switch never closed")
+    assert refuses_casts(failed) and not verified_home(failed)
+    # The switch made but the homing fault standing: not a home R-F may rely on.
+    stuck = WinchStatus(0.0, False, True, "homing failed: switch closed at 3.96 m")
+    assert refuses_casts(stuck) and not verified_home(stuck)
+    assert not refuses_casts(WinchStatus(0.0, False, True, "stall: no drum pulse"))
+    assert not refuses_casts(WinchStatus(2.0, False, False, None))  # down, no fault: recovered
+
+    machine = CastMachine.refused(started_at=10.0, report_period_s=1.0, depth_m=2.0, fault="x")
+    assert machine.phase is Phase.STRANDED
+    first = machine.step(10.0, failed)
+    assert [a for a in first if isinstance(a, ReportDepth)] == [ReportDepth(2.0, Phase.STRANDED)]
+    assert machine.step(10.5, failed) == []  # one report a period
+    for t in (11.0, 12.0, 13.0):
+        assert not any(isinstance(a, SendFinished) for a in machine.step(t, stuck))
+    done = machine.step(14.0, WinchStatus(0.0, False, True, None))
+    [finish] = [a for a in done if isinstance(a, SendFinished)]
+    assert finish.outcome is Outcome.ABORTED and machine.abort_reason == "cast refused: x"

@@ -78,6 +78,13 @@ def test_hex_arguments_plain_output(capsys: pytest.CaptureFixture[str]) -> None:
     assert lines == ["P-S timestamp_s=72"]
 
 
+def test_fault_report_decodes_with_its_depth(capsys: pytest.CaptureFixture[str]) -> None:
+    # The bytes the firmware was fed on 53bf5564 (docs/protocol.md): R-L, t=5, 2.5 m.
+    status, lines, _ = run(["52", "4C", "00", "05", "09", "C4", "01", "70"], capsys)
+    assert status == 0
+    assert lines[0].startswith("R-L timestamp_s=5 depth_mm=2500")
+
+
 def test_position_frame_plain_output_names_fields_and_degrees(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

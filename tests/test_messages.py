@@ -315,6 +315,7 @@ def test_frame_names_and_dicts() -> None:
         "R-M",
         "R-F",
         "R-P",
+        "R-L",
     ]
     assert as_dict(Finished(72, 0)) == {"frame": "R-F", "timestamp_s": 72, "depth_mm": 0}
     assert as_dict(Telemetry(*MADRID)) == {

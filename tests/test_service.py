@@ -16,7 +16,7 @@ import structlog
 
 from cc_daemon.config import Settings
 from cc_daemon.core.cast.machine import CastMachine
-from cc_daemon.core.protocol import Ack, DepthReport, Finished, ProbePositionRequest
+from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished, ProbePositionRequest
 from cc_daemon.core.winch.physics import LinePhysics
 from cc_daemon.daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, Daemon
 from cc_daemon.daemon.systemd import SystemdNotifier
@@ -66,7 +66,9 @@ async def test_a_bug_in_the_cast_machine_stops_the_motor_and_keeps_alarming(
         assert await asyncio.wait_for(task, 5) == EXIT_PROBE_MAY_BE_DOWN
     messages = [r.message for r in received if r is not None]
     assert len(messages) == 4
-    assert all(isinstance(m, DepthReport) for m in messages)  # still reporting, never R-F
+    # Still reporting, never R-F; once the bug struck, as R-L (the fault, to the ground station).
+    assert all(isinstance(m, DepthReport | FaultReport) for m in messages)
+    assert isinstance(messages[-1], FaultReport) and isinstance(messages[-2], FaultReport)
     assert not any(isinstance(r.message, Finished) for r in port.received)
     assert status.phase != "idle"
     assert daemon._winch is not None and not daemon._winch.status().moving  # motor stopped
@@ -277,3 +279,37 @@ async def test_a_station_repeated_within_the_rearm_window_says_so(
     assert repeat["log_level"] == "info"
     assert repeat["rearm_s"] == 120.0
     assert 0 <= repeat["since_s"] < 5
+
+
+class DriftingWinch(SimulatedWinch):
+    """At home by its switch while its count still says 42 mm (drift within tolerance)."""
+
+    def __init__(self) -> None:
+        super().__init__(LinePhysics(speed_m_s=10.0, max_line_m=20.0), SystemClock())
+
+    def status(self) -> Any:
+        status = super().status()
+        return status._replace(depth_m=0.042) if status.at_home else status
+
+
+async def test_r_f_always_carries_depth_0(tmp_path: Path) -> None:
+    """R-F means home: depth 0 on the wire, whatever small figure the winch gives."""
+    with PtyPair(tmp_path / "tty") as pty:
+        daemon = Daemon(
+            _settings(tmp_path, pty.path, cast={"target_depth_m": 1.0, "bottom_dwell_s": 0.1}),
+            winch=DriftingWinch(),
+        )
+        port = await FramePort.over_fd(pty.master_fd)
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        finishes: list[Finished] = []
+        for shallow in (False, True, False):  # a cast, a skipped shoal, a repeated station
+            await port.send(station(sonar_mm=300 if shallow else 30_000))
+            while (got := await port.receive(5)) is not None:
+                if isinstance(got.message, Finished):
+                    finishes.append(got.message)
+                    break
+        daemon.request_shutdown()
+        assert await asyncio.wait_for(task, 5) == EXIT_OK
+        await port.close()
+    assert len(finishes) == 3 and all(f.depth_mm == 0 for f in finishes)

@@ -11,6 +11,7 @@ from cc_daemon.core.protocol import (
     CorruptFrame,
     DepthReport,
     ErrorKind,
+    FaultReport,
     Finished,
     Message,
     ProbePosition,
@@ -328,6 +329,25 @@ def test_a_refusal_at_the_shoal_is_expected_and_at_a_deep_station_is_not() -> No
     assert ap.logs[0].verdict == "skipped"
 
 
+@pytest.mark.parametrize("firmware", ["manual", "ucm-2023"])
+def test_r_l_is_recorded_and_the_station_held_until_r_f(firmware: str) -> None:
+    config = AutopilotConfig(boat_speed_m_s=100.0, firmware=firmware)  # type: ignore[arg-type]
+    ap, t = _at_cast(config)
+    ap.on_frame(t + 1, DepthReport(0, 1500))
+    for i in range(2, 12):  # stranded: R-L every second, far past the report gap
+        ap.on_frame(t + i, FaultReport(0, 1480))
+        for frame in ap.poll(t + i + 0.5):
+            if isinstance(frame, ProbePositionRequest):
+                ap.on_frame(t + i + 0.51, ProbePosition(0, 1480))
+    log = ap.logs[0]
+    assert (log.fault_reports, log.fault_depth_m, ap.error_last) == (10, 1.48, 76)
+    assert ap.phase is Phase.CASTING and ap.index == 0  # still at the station
+    assert log.verdict == "stranded: R-L x10, no R-F"
+    assert ap.violations == []  # R-L is the daemon keeping the protocol
+    ap.on_frame(t + 13, Finished(0, 0))  # hauled in by hand: released
+    assert ap.error_last == 0 and log.finished_at is not None and ap.index == 1
+
+
 def test_gives_up_on_a_station_without_r_f_but_does_not_leave() -> None:
     config = AutopilotConfig(boat_speed_m_s=100.0, finish_timeout_s=20.0)
     ap, t = _at_cast(config)
@@ -451,3 +471,18 @@ def test_bad_configuration_is_refused() -> None:
         AutopilotConfig(noise_margin_s=-1)
     with pytest.raises(ValueError, match="outage_grace_s"):
         AutopilotConfig(outage_grace_s=-1)
+
+
+def test_r_f_after_the_cable_returns_is_not_read_as_a_refusal() -> None:
+    # --drop-link-at 5: R-O, the cable out, every R-M lost, the repeated R-F arrives.
+    ap, t = _at_cast(AutopilotConfig(boat_speed_m_s=100.0, firmware="ucm-2023"))
+    ap.link_down(t + 0.5)
+    ap.link_up(t + 3.5)
+    ap.on_frame(t + 8.0, Finished(0, 0))
+    [skip] = [v for v in ap.violations if v.kind is ViolationKind.UNEXPECTED_SKIP]
+    assert skip.excused_by == "the cable was unplugged"
+    assert ap.problems == [] and ap.logs[0].verdict == "skipped"
+    # Without the cable pulled, R-F at once at a deep station is still a refusal.
+    ap, t = _at_cast(AutopilotConfig(boat_speed_m_s=100.0, firmware="ucm-2023"))
+    ap.on_frame(t + 8.0, Finished(0, 0))
+    assert [v.kind for v in ap.problems] == [ViolationKind.UNEXPECTED_SKIP]

@@ -289,19 +289,22 @@ async def test_a_probe_that_cannot_come_home_gets_no_r_f_and_fails_the_run(
         finish_margin_s=3.0,
     )
     code, text, _ = await _simulate(tmp_path, stations=2, pace=jamming, winch_fail_home=True)
-    assert code == 130, text  # the daemon was stopped at once, the probe still down
-    assert "no R-F" in _row(text, "S1")
+    # The stick's jog up jams at 0.5 m before M: the winch cannot vouch for home, so the
+    # station is refused and held with R-L (the fault, for the ground station), never R-F.
+    assert code == 4, text  # the survey halted: its own exit status
+    assert "stranded: R-L x" in _row(text, "S1")
     assert "not reached" in _row(text, "S2")
     assert "giving up on the station with the probe last reported at 0.50 m" in text
     assert "← R-F" not in text  # never told to leave with the probe down
-    assert "stopped at once: the probe may be down at 0.50 m" in text
+    assert "← R-L" in text and "the last at 0.50 m" in text
+    assert "the probe stranded at 0.50 m: the daemon sent R-L" in text
     assert "interrupted" not in text
     assert ", 1 unfinished; the probe left 0.50 m down" in text
     # Withholding R-F from a probe that is down is the protocol kept.
     assert "R-F rightly withheld" in text
     assert text.endswith(
-        "SURVEY INCOMPLETE: 0 of 1 castable station measured; the daemon kept the protocol "
-        "(exit status 130)\n"
+        "SURVEY HALTED: probe stranded at S1, fault reported to the autopilot: 0 of 1 "
+        "castable station measured; the daemon kept the protocol (exit status 4)\n"
     )
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from cc_daemon.config import Settings
-from cc_daemon.core.protocol import Ack, DepthReport, Finished
+from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished
 from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig, Phase
 from cc_daemon.sim.commands import add_simulate_arguments, options_from_args
 from cc_daemon.sim.console import SimConsole, summary_lines
@@ -186,3 +186,50 @@ def test_the_headline_counts_stations_in_english() -> None:
     assert _headline(SimOptions(), make_mission(3, 1)).startswith(
         "cc-daemon --simulate: 3 stations, seed 1, "
     )
+
+
+def test_a_probe_stranded_with_r_l_halts_the_survey_with_its_own_exit_status() -> None:
+    mission = make_mission(2, 1)
+    autopilot = Autopilot(mission, AutopilotConfig(frame_period_s=0.5))
+    now = 0.0
+    while autopilot.phase is not Phase.REQUESTING:
+        autopilot.poll(now)
+        now += 0.5
+    autopilot.on_frame(now, Ack(0))
+    for depth_mm in (1000, 2000):
+        now += 0.5
+        autopilot.on_frame(now, DepthReport(0, depth_mm))
+    for _ in range(4):  # stuck at 1.5 m hauling in: R-L, never R-F
+        now += 0.5
+        autopilot.on_frame(now, FaultReport(0, 1500))
+    autopilot.finish(now + 0.5)  # the run ends with the station held
+    run = Run(mission, autopilot, SimConsole(io.StringIO(), live=False))
+    summary = build_summary(run, casts=None, daemon_exit=None, db_path=None, log_path=None)
+    lines = summary_lines(summary)
+    assert summary.exit_code == 4 and summary.stranded_at == 1
+    assert lines[-1] == (
+        "SURVEY HALTED: probe stranded at S1, fault reported to the autopilot: 0 of 1 castable "
+        "station measured; the daemon kept the protocol on the wire (exit status 4)"
+    )
+    assert summary.stations[0].verdict == "stranded: R-L x4, no R-F"
+    assert [v.excused_by for v in summary.violations] == ["the daemon reported the fault (R-L)"]
+
+
+def test_a_cast_the_journal_holds_is_measured_though_its_r_m_were_lost_on_the_cable() -> None:
+    from cc_daemon.sim.summary import JournalCast
+
+    mission = make_mission(2, 1)
+    autopilot = Autopilot(mission, AutopilotConfig(frame_period_s=0.5))
+    now = 0.0
+    while autopilot.phase is not Phase.REQUESTING:
+        autopilot.poll(now)
+        now += 0.5
+    autopilot.on_frame(now, Ack(0))
+    autopilot.link_down(now + 0.5)
+    autopilot.link_up(now + 3.5)
+    autopilot.on_frame(now + 8.0, Finished(0, 0))
+    run = Run(mission, autopilot, SimConsole(io.StringIO(), live=False))
+    casts = [JournalCast(1, 2.64, 2.64, "completed", None, 1)]
+    summary = build_summary(run, casts=casts, daemon_exit=0, db_path=None, log_path=None)
+    assert summary.stations[0].verdict == "measured" and summary.protocol_kept
+    assert any("the journal holds the cast, completed" in note for note in summary.notes)

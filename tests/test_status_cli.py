@@ -62,7 +62,13 @@ async def test_json_and_words(
     doc = json.loads(next(line for line in out if line.startswith("{")))
     assert doc["daemon"]["state"] == "serving"
     assert doc["fix"]["frame"] == "P-T" and doc["fix"]["sonar_confidence_pct"] == 96
-    assert doc["cast"] == {"phase": "idle", "cast_id": None, "planned_depth_m": None, "depth_m": 0}
+    assert doc["cast"] == {
+        "phase": "idle",
+        "cast_id": None,
+        "planned_depth_m": None,
+        "depth_m": 0,
+        "fault_reported": None,  # the probe stranded: depth, fault, R-L sent
+    }
     assert doc["winch"]["at_home"] is True and doc["winch"]["moving"] is False
     assert doc["journal"]["path"].endswith("j.db") and doc["journal"]["dropped_rows"] == 0
 

@@ -11,6 +11,7 @@
     cc-daemon doctor                         check this Pi is ready to run the service
     cc-daemon simulate-sonde --port PATH     the simulated sonde alone, on a pty at PATH
     cc-daemon winch status|home|down|up      the GPIO winch by hand (jog, home, calibrate)
+    cc-daemon release --reason TEXT          release a stranded station (probe seen on board)
     cc-daemon simulate-sonar --port P        the simulated Ping1D echosounder alone
 
 Exit status: 0 success; 1 a tool found problems (corrupt frames, a protocol
@@ -172,6 +173,7 @@ _COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("sonde",), "cc_daemon.cli.sonde", "add_command"),
     (("simulate-sonde",), "cc_daemon.sim.sondecli", "add_command"),
     (("winch",), "cc_daemon.cli.winch", "add_command"),
+    (("release",), "cc_daemon.cli.release", "add_command"),
     (("simulate-sonar",), "cc_daemon.sim.sonar_cli", "add_commands"),
 )
 _HELP = ("-h", "--help")

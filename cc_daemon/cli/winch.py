@@ -6,7 +6,8 @@ voltage, twice a second while the motor runs. It builds the winch exactly as
 the daemon does (`winch.factory`), so every safety rule holds, and it leaves
 the motor stopped however it ends (Ctrl-C, SIGTERM, an error). It never talks
 to the autopilot and never writes the journal; the daemon must not be running
-(the pins have one owner).
+(the pins have one owner), except for `home`: with the daemon running it asks
+the daemon (its control socket) to haul a stranded probe in.
 """
 
 from __future__ import annotations
@@ -58,7 +59,27 @@ def run(args: argparse.Namespace) -> int:
     if args.action in ("status", "home") and (args.seconds or args.metres):
         print(f"cc-daemon winch {args.action}: takes no --seconds/--metres", file=sys.stderr)
         return EXIT_USAGE
+    if args.action == "home":
+        through = _home_through_daemon(settings)
+        if through is not None:
+            return through
     return asyncio.run(_drive(settings, args.action, args.seconds, args.metres, sys.stdout))
+
+
+def _home_through_daemon(settings: Any) -> int | None:
+    """With the daemon running (its control socket answers), it owns the pins: ask
+    it to haul a stranded probe in. None: no daemon, drive the winch here."""
+    from cc_daemon.cli.release import ask_daemon
+    from cc_daemon.config.statuspaths import client_socket_path
+    from cc_daemon.daemon.control_server import control_path
+
+    path = control_path(client_socket_path(settings.status))
+    try:
+        answer = ask_daemon(path, "home")
+    except OSError:
+        return None
+    print(f"cc-daemon winch home (through the running daemon): {answer['message']}")
+    return EXIT_OK if answer["ok"] else EXIT_FAULT
 
 
 def _line(winch: Any) -> str:

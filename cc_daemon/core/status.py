@@ -44,3 +44,4 @@ class DaemonStatus:
     jog: str | None = None  # "up" / "down" while the RC stick jogs the probe
     lost_start: str | None = None  # set while the autopilot may wait on an unread M
     port_open_attempts: int = 0  # failed attempts to open the port since it was last open
+    fault_reports: int = 0  # R-L sent for the running cast (stranded, refused)

@@ -8,7 +8,10 @@ by the Daemon's constructor.
 
 Guarantees kept here:
 - `R-F` is sent only from a `SendFinished` the machine produced from a status
-  saying the probe is home.
+  saying the probe is home, and always carries depth 0.
+- While the probe may be down and cannot come home (stranded, a refused
+  station, an internal error) the depth goes out as `R-L`, never `R-M`: the
+  firmware hands the code to the ground station and keeps the boat waiting.
 - A cast cancelled or failed stops the motor and says so loudly; after an
   internal error no `R-F` is ever sent and the depth keeps being reported.
 - Nothing in the journal can stop the boat (`_journaling`).
@@ -39,13 +42,14 @@ from cc_daemon.core.cast.plan import Phase
 from cc_daemon.core.cast.stations import StationMemory
 from cc_daemon.core.cast.timestamps import AutopilotTime
 from cc_daemon.core.protocol import Finished, StartMeasuring, as_dict, encode
-from cc_daemon.core.protocol.messages import CcMessage, DepthReport
-from cc_daemon.core.winch.status import ApproachSpeed, Winch, WinchStatus
+from cc_daemon.core.protocol.messages import CcMessage, DepthReport, FaultReport
+from cc_daemon.core.winch.status import ApproachSpeed, Winch, WinchStatus, verified_home
 from cc_daemon.daemon.line_watch import LineWatch
 from cc_daemon.daemon.sonde import SondeDuty
 from cc_daemon.drivers.link import SerialLink
 from cc_daemon.ground.clock import Clock
 from cc_daemon.store import Journal
+from cc_daemon.store.interrupted import InterruptedCast
 
 _log = structlog.get_logger("cc_daemon.service")
 
@@ -61,6 +65,7 @@ class ActiveCast:
         self.task: asyncio.Task[None] | None = None
         self.reports = 0
         self.told_no_approach_speed = False  # said once a cast (`CastRunner._move`)
+        self.fault_reports = 0  # R-L sent for this station
         # Set when the cast can make no progress without an operator: the probe
         # is stranded, or the cast task failed. Shutdown stops waiting then.
         self.settled = asyncio.Event()
@@ -87,6 +92,7 @@ class CastRunner:
     _line: LineWatch
     _sonde: SondeDuty | None
     _last_depth_m: float
+    _interrupted: list[InterruptedCast]
 
     def _winch_status(self) -> WinchStatus:
         """The winch's status; if the backend fails, a faulted status at the last depth."""
@@ -150,6 +156,46 @@ class CastRunner:
         assert self._tasks is not None
         cast.task = self._tasks.create_task(self._run_cast(cast), name=f"cast-{cast.cast_id}")
 
+    def _release_interrupted(self) -> None:
+        """The link is up: free each station a killed run left the boat waiting at
+        (`daemon.restart`): R-F at a verified home, else R-L until there."""
+        pending, self._interrupted = self._interrupted, []
+        for interrupted in pending:
+            status = self._winch_status()
+            if verified_home(status) and self._cast is None:
+                self._send(Finished(self._now_ts(), 0))
+                _log.warning(
+                    "station of the interrupted cast released: the probe is home, R-F sent",
+                    cast_id=interrupted.cast_id,
+                )
+                self._journal_event("cast_recovered", cast_id=interrupted.cast_id, rf_sent=True)
+            elif self._cast is None:
+                station = StartMeasuring(0, interrupted.lon_e7, interrupted.lat_e7, 0, 0, 0)
+                fault = status.fault or f"probe {status.depth_m:.2f} m down after a restart"
+                self._refuse_cast(station, status._replace(fault=fault), self._clock.monotonic())
+                self._journal_event(
+                    "cast_recovered", cast_id=interrupted.cast_id, rf_sent=False, held_by_r_l=True
+                )
+
+    def _refuse_cast(self, station: StartMeasuring, status: WinchStatus, now: float) -> None:
+        """No cast on a winch that cannot vouch for home (its homing failed, a fault
+        with the probe not verified home): the station is held with R-L at once
+        and every period, and released with R-F only at a verified home."""
+        fault = status.fault or "winch fault"
+        _log.critical(
+            "start-measuring refused: the winch cannot verify home; reporting the fault",
+            fault=fault,
+            depth_m=round(status.depth_m, 3),
+        )
+        self._journal_event("cast_refused", fault=fault, depth_m=round(status.depth_m, 3))
+        machine = CastMachine.refused(
+            started_at=now,
+            report_period_s=self.settings.cast.report_period_s,
+            depth_m=status.depth_m,
+            fault=fault,
+        )
+        self._start_cast(station, machine, now)
+
     async def _run_cast(self, cast: ActiveCast) -> None:
         machine = cast.machine
         winch = self._winch
@@ -208,7 +254,7 @@ class CastRunner:
             await self._clock.sleep_until(next_at)
             next_at += period
             depth = self._probe_depth()
-            self._send(DepthReport(self._now_ts(), self._depth_mm(depth)))
+            self._report_fault(cast, depth, "internal error: probe state unknown")
             _log.critical(
                 "PROBE STATE UNKNOWN after an internal error: no R-F will be sent; "
                 "the winch motor is stopped; operator intervention needed",
@@ -234,6 +280,11 @@ class CastRunner:
                         queue.extend(cast.machine.winch_error(now, f"{type(exc).__name__}: {exc}"))
                 case StopWinch(reason=reason):
                     self._stop_motor(reason)
+                case ReportDepth(depth_m=depth, phase=Phase.STRANDED):
+                    self._report_fault(cast, depth, cast.machine.winch_fault)
+                    with self._journaling("record_sample") as journal:
+                        if journal is not None:
+                            journal.record_sample(cast.cast_id, depth, str(Phase.STRANDED))
                 case ReportDepth(depth_m=depth, phase=phase):
                     cast.reports += 1
                     told = self._sonde.report_depth(depth, now) if self._sonde else depth
@@ -246,11 +297,9 @@ class CastRunner:
                 case PhaseChanged(old=old, new=new, reason=reason):
                     self._phase_changed(cast, old, new, reason)
                 case Alarm(message=message):
-                    _log.critical(
-                        message,
-                        cast_id=cast.cast_id,
-                        stranded_for_s=round(now - cast.machine.started_at),
-                    )
+                    # Identical each period while nothing changes, so the log's rate
+                    # limiter passes one per window with a count (the R-L goes each period).
+                    _log.critical(message, cast_id=cast.cast_id)
         return commanded
 
     def _move(self, cast: ActiveCast, depth_m: float, *, slow: bool) -> None:
@@ -270,6 +319,76 @@ class CastRunner:
                     backend=self.settings.winch.backend,
                 )
             winch.move_to(depth_m)
+
+    def _report_fault(self, cast: ActiveCast, depth_m: float, fault: str | None) -> None:
+        """`R-L` with the best depth we have, in place of `R-M`: the firmware shows
+        the code to the ground station and keeps the boat at the station. The
+        first of a stranding is journaled; the alarm in the log goes with each."""
+        self._send(FaultReport(self._now_ts(), self._depth_mm(depth_m)))
+        cast.fault_reports += 1
+        if cast.fault_reports == 1:
+            self._journal_event(
+                "fault_reported", cast_id=cast.cast_id, depth_m=round(depth_m, 3), fault=fault
+            )
+
+    def _check_home_at_exit(self) -> None:
+        """Exit 0 means the probe is home: a winch that cannot verify it says so."""
+        if self._exit_code != EXIT_OK or self._winch is None:
+            return
+        status = self._winch_status()
+        if not verified_home(status):
+            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
+            _log.critical(
+                "exiting with the probe NOT verified home: recover it by hand",
+                depth_m=round(status.depth_m, 3),
+                at_home=status.at_home,
+                fault=status.fault,
+            )
+
+    async def _serve_control(self) -> None:
+        from cc_daemon.daemon.control_server import serve_control
+
+        await serve_control(self.settings.status, self.release_station, self.haul_home)
+
+    def haul_home(self, peer: object, reason: str) -> tuple[bool, str]:
+        """`cc-daemon winch home` with the daemon running: haul a stranded probe in.
+        The station ends (R-F) only if the winch then verifies home."""
+        cast = self._cast
+        if cast is None or cast.machine.phase is not Phase.STRANDED or self._winch is None:
+            return False, "no stranded probe to haul in (stop the daemon to drive the winch)"
+        _log.warning("operator: hauling the stranded probe in", peer=str(peer), reason=reason)
+        self._journal_event("operator_haul_in", cast_id=cast.cast_id, peer=str(peer))
+        try:
+            self._winch.move_to(0.0)
+        except Exception as exc:
+            return False, f"the winch refused: {type(exc).__name__}: {exc}"
+        return True, "hauling the probe in: R-F goes once the winch verifies home"
+
+    def release_station(self, peer: object, reason: str) -> tuple[bool, str]:
+        """`cc-daemon release`: an operator who has seen the probe on board ends a
+        stranded station (R-F, depth 0). Nothing else: no cast is stranded, no release."""
+        cast = self._cast
+        if cast is None or cast.machine.phase is not Phase.STRANDED:
+            _log.warning("operator release refused: no stranded station", peer=str(peer))
+            return False, "no stranded station to release"
+        depth = round(cast.machine.depth_m, 3)
+        _log.critical(
+            "OPERATOR RELEASE: the station is released with the winch unable to verify home",
+            cast_id=cast.cast_id,
+            reason=reason,
+            peer=str(peer),
+            winch_depth_m=depth,
+        )
+        self._journal_event(
+            "operator_release",
+            cast_id=cast.cast_id,
+            reason=reason,
+            peer=str(peer),
+            winch_depth_m=depth,
+            fault=cast.machine.winch_fault,
+        )
+        self._execute(cast, cast.machine.operator_release(reason))
+        return True, f"station released: R-F sent (cast {cast.cast_id})"
 
     def bottom_contact(self, depth_m: float) -> None:
         """The sonde says the probe is on the bottom: stop paying out, go on from there."""
@@ -297,6 +416,15 @@ class CastRunner:
                 )
         elif new is Phase.STRANDED:
             self._journal_event("cast_stranded", cast_id=cast.cast_id, reason=reason, depth_m=depth)
+        elif old is Phase.STRANDED:
+            _log.warning(
+                "stranded probe verified home: the fault is cleared, R-F goes",
+                cast_id=cast.cast_id,
+                fault_reports=cast.fault_reports,
+            )
+            self._journal_event(
+                "stranded_cleared", cast_id=cast.cast_id, fault_reports=cast.fault_reports
+            )
         else:
             _log.info("cast phase", cast_id=cast.cast_id, phase=str(new), depth_m=depth)
 
@@ -304,7 +432,8 @@ class CastRunner:
         # The machine produced SendFinished from a status saying the probe is
         # home, in this same step; reading the winch again here could only
         # disagree with the machine and leave a cast half-ended.
-        self._send(Finished(self._time.at(now), self._depth_mm(action.depth_m)))
+        # R-F means "home": its depth is 0, whatever small figure the winch gives.
+        self._send(Finished(self._time.at(now), 0))
         with self._journaling("end_cast") as journal:
             if journal is not None:
                 # The profile's last point: the probe home, when R-F went out.

@@ -32,6 +32,7 @@ from cc_daemon.core.cast.rf_repeat import RfRepeater
 from cc_daemon.core.cast.timestamps import TimestampOrder
 from cc_daemon.core.protocol import Finished, Message, Telemetry, encode
 from cc_daemon.core.winch.status import WinchStatus
+from cc_daemon.ground.clock import Clock
 
 _log = structlog.get_logger("cc_daemon.service")
 
@@ -196,3 +197,24 @@ class LineWatch:
             f"autopilot silent after {lost.corrupt_frames} corrupt frame(s): "
             "a start-measuring frame may have been lost"
         )
+
+
+async def watch_line(line: LineWatch, clock: Clock, cast_running: Callable[[], bool]) -> None:
+    """The daemon's duty: the jog's dead-man stop, R-F repeats and the lost-M watch,
+    asleep until the next deadline, or until something brings one nearer."""
+    while True:
+        now = clock.monotonic()
+        line.tick(now, cast_running=cast_running())
+        line.changed.clear()
+        deadline = line.next_deadline(now, cast_running=cast_running())
+        if deadline is None:
+            await line.changed.wait()
+            continue
+        # Never a busy loop, even on a deadline a rounding error keeps in the past.
+        sleeper = asyncio.ensure_future(clock.sleep_until(max(deadline, now + 0.001)))
+        changed = asyncio.ensure_future(line.changed.wait())
+        try:
+            await asyncio.wait((sleeper, changed), return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            sleeper.cancel()
+            changed.cancel()

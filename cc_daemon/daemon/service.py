@@ -32,7 +32,7 @@ from cc_daemon.core.cast.machine import (
     CastMachine,
     Outcome,
 )
-from cc_daemon.core.cast.plan import SkipCast, plan_cast
+from cc_daemon.core.cast.plan import Phase, SkipCast, plan_cast
 from cc_daemon.core.cast.stations import StationMemory
 from cc_daemon.core.cast.timestamps import AutopilotTime
 from cc_daemon.core.protocol import (
@@ -51,11 +51,12 @@ from cc_daemon.core.protocol import (
     as_dict,
 )
 from cc_daemon.core.status import DaemonStatus, Fix
-from cc_daemon.core.winch.status import Winch, WinchStatus
+from cc_daemon.core.winch.status import Winch, WinchStatus, refuses_casts
 from cc_daemon.daemon.casting import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, ActiveCast, CastRunner
-from cc_daemon.daemon.line_watch import LineWatch
+from cc_daemon.daemon.line_watch import LineWatch, watch_line
 from cc_daemon.daemon.preflight import make_journal
 from cc_daemon.daemon.quiet_port import QuietPort
+from cc_daemon.daemon.restart import note_interrupted
 from cc_daemon.daemon.simgate import simulation_warning
 from cc_daemon.daemon.simulators import NO_SIMULATORS, Simulators
 from cc_daemon.daemon.sonde import SondeDuty, make_sonde
@@ -65,6 +66,7 @@ from cc_daemon.drivers.winch.factory import make_winch, prepare_winch
 from cc_daemon.ground.clock import Clock, SystemClock
 from cc_daemon.ground.logsetup import flush_rate_limited, output_loss
 from cc_daemon.store import Journal
+from cc_daemon.store.interrupted import InterruptedCast
 
 if TYPE_CHECKING:
     from cc_daemon.daemon.sonar import OnboardSonar
@@ -152,6 +154,7 @@ class Daemon(CastRunner):
         self._output_loss_reported = False
         self._sonde: SondeDuty | None = None
         self._quiet = QuietPort()
+        self._interrupted: list[InterruptedCast] = []  # stations a killed run left held
 
     # ------------------------------------------------------------ lifecycle
 
@@ -171,6 +174,7 @@ class Daemon(CastRunner):
             for cast_id in self._journal.open():
                 _log.warning("cast left unfinished by a previous run", cast_id=cast_id)
         self._journal.record_event("daemon_started", port=self.settings.serial.port)
+        self._interrupted = note_interrupted(self._journal)
         self._sonde = make_sonde(
             self.settings, clock=self._clock, journal=self._journal, view=self.snapshot,
             on_bottom_contact=self.bottom_contact, simulator=self._simulators.sonde,
@@ -198,6 +202,9 @@ class Daemon(CastRunner):
                 status = tasks.create_task(
                     self._keep_running("status", self._serve_status), name="status"
                 )
+                control = tasks.create_task(
+                    self._keep_running("control", self._serve_control), name="control"
+                )
                 sonde = self._sonde and tasks.create_task(
                     self._keep_running("sonde", self._sonde.run), name="sonde"
                 )
@@ -216,11 +223,13 @@ class Daemon(CastRunner):
                 link_task.cancel()
                 housekeeping.cancel()
                 status.cancel()
+                control.cancel()
                 if sonde:
                     sonde.cancel()
                 if sonar_task:
                     sonar_task.cancel()
                 watch.cancel()
+            self._check_home_at_exit()
         finally:
             await self._close()
         return self._exit_code
@@ -391,25 +400,7 @@ class Daemon(CastRunner):
                 self._journal_event("corrupt_frames", new=new, total=corrupt)
 
     async def _watch_line(self) -> None:
-        """The jog's dead-man stop, R-F repeats and the lost-M watch (`line_watch`):
-        asleep until the next deadline, or until something brings one nearer."""
-        line = self._line
-        while True:
-            now = self._clock.monotonic()
-            line.tick(now, cast_running=self._cast is not None)
-            line.changed.clear()
-            deadline = line.next_deadline(now, cast_running=self._cast is not None)
-            if deadline is None:
-                await line.changed.wait()
-                continue
-            # Never a busy loop, even on a deadline a rounding error keeps in the past.
-            sleeper = asyncio.ensure_future(self._clock.sleep_until(max(deadline, now + 0.001)))
-            changed = asyncio.ensure_future(line.changed.wait())
-            try:
-                await asyncio.wait((sleeper, changed), return_when=asyncio.FIRST_COMPLETED)
-            finally:
-                sleeper.cancel()
-                changed.cancel()
+        await watch_line(self._line, self._clock, lambda: self._cast is not None)
 
     def _report_output_loss(self) -> None:
         """A log stream gone for good (a closed terminal): say so where it can be seen."""
@@ -437,6 +428,7 @@ class Daemon(CastRunner):
             casts_aborted=self.casts_aborted,
             casts_skipped=self.casts_skipped,
             winch_fault=cast.machine.winch_fault if cast else None,
+            fault_reports=cast.fault_reports if cast else 0,
             port_losses=self.port_losses,
             last_fix=self.last_fix,
             winch=self._winch_status() if self._winch is not None else None,
@@ -461,6 +453,7 @@ class Daemon(CastRunner):
         if up:
             kind = "port_regained" if self.port_losses else "port_opened"
             self._journal_event(kind, port=self.link.port)
+            self._release_interrupted()  # a station the previous run left the boat at
             self.ready.set()
             self._notifier.notify(f"STATUS=answering on {self.link.port}")
         else:
@@ -516,6 +509,10 @@ class Daemon(CastRunner):
         cast = self._cast
         if cast is None:
             self._line.stick(stick, now)
+        elif cast.machine.phase is Phase.STRANDED and stick is Stick.UP:
+            # The safety pilot hauls a stranded probe in: a jog (dead-man's handle);
+            # the stranded cast ends, with R-F, only once the winch verifies home.
+            self._line.stick(stick, now)
         elif stick is Stick.UP:
             self._execute(cast, cast.machine.abort(now, "safety pilot: probe up (RC stick)"))
         else:
@@ -530,6 +527,9 @@ class Daemon(CastRunner):
             return
         self._send(Ack(self._time.at(now)))
         status = self._winch_status()
+        if refuses_casts(status):  # never a cast on a winch that cannot vouch for home
+            self._refuse_cast(station, status, now)
+            return
         if not status.at_home:
             # Down with no cast (a restart mid-cast, a hand-lowered probe): bring
             # it home first, reporting as a cast does; this station is not measured.
@@ -551,7 +551,7 @@ class Daemon(CastRunner):
                 since_s=round(now - done.finished_at, 1),
                 rearm_s=self.settings.cast.rearm_s,
             )
-            self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
+            self._send(Finished(self._time.at(now), 0))  # at home: checked above
             return
         bottom = station
         if self.sonar is not None:  # the freshest confident bottom of the two sonars
@@ -585,4 +585,4 @@ class Daemon(CastRunner):
                 )
         self.casts_skipped += 1
         self._stations.finished(station, now, cast_id)
-        self._send(Finished(self._time.at(now), self._depth_mm(status.depth_m)))
+        self._send(Finished(self._time.at(now), 0))  # the probe never left home

@@ -102,6 +102,16 @@ def _cast(src: Source) -> dict[str, Any]:
         "cast_id": s.cast_id,
         "planned_depth_m": s.planned_depth_m,
         "depth_m": round(s.probe_depth_m, 3),
+        # The probe may be down and cannot come home: R-L goes to the autopilot.
+        "fault_reported": (
+            {
+                "depth_m": round(s.probe_depth_m, 3),
+                "fault": s.winch_fault,
+                "r_l_sent": s.fault_reports,
+            }
+            if s.phase == "stranded"
+            else None
+        ),
     }
 
 

@@ -45,13 +45,13 @@ from bisect import bisect_left
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Literal
 
 from cc_daemon.core.protocol import (
     Ack,
     AutopilotMessage,
     CorruptFrame,
     DepthReport,
+    FaultReport,
     Finished,
     Message,
     ProbeDown,
@@ -60,6 +60,12 @@ from cc_daemon.core.protocol import (
     ProbeUp,
     StartMeasuring,
     Telemetry,
+)
+from cc_daemon.sim.autopilot_config import (
+    FIRMWARES,
+    UCM_2023_FRAME_PERIOD_S,
+    AutopilotConfig,
+    Firmware,
 )
 from cc_daemon.sim.mission import ORIGIN_ALT_M, Mission, Point, SonarReading, Station
 from cc_daemon.sim.violations import (
@@ -74,6 +80,7 @@ from cc_daemon.sim.violations import (
 __all__ = [
     "BITS_FLIPPED",
     "FIRMWARES",
+    "UCM_2023_FRAME_PERIOD_S",
     "Autopilot",
     "AutopilotConfig",
     "Firmware",
@@ -82,10 +89,6 @@ __all__ = [
     "Violation",
     "ViolationKind",
 ]
-
-Firmware = Literal["ucm-2023", "manual"]
-FIRMWARES: tuple[Firmware, ...] = ("ucm-2023", "manual")
-UCM_2023_FRAME_PERIOD_S = 1.1  # a 1 s interval checked on a 10 Hz tick
 
 
 def _little_endian(stamp: int) -> int:
@@ -99,53 +102,6 @@ class Phase(StrEnum):
     REQUESTING = "requesting"  # at a station, sending M until R-O
     CASTING = "casting"  # R-O received, holding position until R-F
     DONE = "done"  # every station visited (or the run was ended)
-
-
-@dataclass(frozen=True, slots=True)
-class AutopilotConfig:
-    frame_period_s: float = 1.0
-    boat_speed_m_s: float = 1.5
-    query_every: int = 3  # while the probe is out, every n-th frame is S
-    resend_m_during_cast: bool = False
-    report_gap_s: float = 3.0
-    answer_timeout_s: float = 1.0
-    finish_timeout_s: float = 900.0  # from arriving at a station
-    max_line_m: float = 20.0
-    depth_tolerance_m: float = 0.05
-    check_plan: bool = True  # a shoal station must be refused, every other one cast
-    # A flipped bit this long (or a frame period, if longer) before a check's
-    # window opened still explains it: a mangled frame can hold the peer's
-    # parser until the next frame's bytes complete it.
-    noise_margin_s: float = 1.0
-    # After a replug: the daemon's reopen backoff tops out at its
-    # serial.reconnect_max_s (5 s by default), plus a second to answer.
-    outage_grace_s: float = 6.0
-    station_grace_s: float = 3.0  # late answers to our last M after leaving are not news
-    # Hold on station this long (sending T) before the first M, so a sonar read
-    # over a real link (`sim.sonar_chain`) has heard the station, not the approach.
-    settle_s: float = 0.0
-    firmware: Firmware = "manual"
-    stick_jog: bool = False  # ucm-2023: the safety pilot jogs the probe at the deepest station
-    # The scripted jog: so many frames of stick down, then a pause (T), stick up, a pause.
-    jog_script: tuple[tuple[str, int], ...] = (("D", 1), ("T", 2), ("U", 3), ("T", 3))
-
-    def __post_init__(self) -> None:
-        if self.frame_period_s <= 0:
-            raise ValueError(f"frame_period_s={self.frame_period_s} is invalid: allowed > 0")
-        if self.boat_speed_m_s <= 0:
-            raise ValueError(f"boat_speed_m_s={self.boat_speed_m_s} is invalid: allowed > 0")
-        if self.query_every < 2:
-            raise ValueError(f"query_every={self.query_every} is invalid: allowed >= 2")
-        if self.noise_margin_s < 0:
-            raise ValueError(f"noise_margin_s={self.noise_margin_s} is invalid: allowed >= 0")
-        if self.outage_grace_s < 0:
-            raise ValueError(f"outage_grace_s={self.outage_grace_s} is invalid: allowed >= 0")
-        if self.firmware not in FIRMWARES:
-            raise ValueError(f"firmware={self.firmware!r} is invalid: allowed {FIRMWARES}")
-
-    @property
-    def ucm_2023(self) -> bool:
-        return self.firmware == "ucm-2023"
 
 
 @dataclass(slots=True)
@@ -168,6 +124,7 @@ class Autopilot:
         self.logs = [StationLog(s) for s in mission.stations]
         self.violations: list[Violation] = []
         self.probe_depth_m = 0.0  # the last depth the daemon told us
+        self.error_last = 0  # the firmware's receive error: 76 after an R-L, 0 after R-F
         self._leg_started_at: float | None = None
         self._next_frame_at: float | None = None
         self._frames_at_station = 0
@@ -270,6 +227,8 @@ class Autopilot:
             self._on_probe_position(now, message)
         elif isinstance(message, Finished):
             self._on_finished(now, message)
+        elif isinstance(message, FaultReport):
+            self._on_fault(now, message)
         else:
             self._violation(
                 now, ViolationKind.UNEXPECTED_FRAME, f"{message.frame} is not a CC frame"
@@ -443,6 +402,22 @@ class Autopilot:
         self._last_report_at = now
         self._gap_flagged = self._retrying = False
 
+    def _on_fault(self, now: float, message: FaultReport) -> None:
+        """`R-L`: both 2023 revisions store it as their receive error (76) for the
+        ground station and keep waiting at the station: so do both profiles."""
+        if self.phase is Phase.REQUESTING:
+            self._start_cast(now)  # R-O was lost on the way
+        if self.phase is not Phase.CASTING:
+            if not self._just_left(now):
+                self._violation(now, ViolationKind.UNEXPECTED_FRAME, "R-L with no cast running")
+            return
+        log = self.logs[self.index]
+        log.fault_reports += 1
+        log.fault_depth_m = self.probe_depth_m = message.depth_m
+        self.error_last = 76
+        self._last_report_at = now  # the daemon is speaking: not a silent gap
+        self._gap_flagged = self._retrying = False
+
     def _on_probe_position(self, now: float, message: ProbePosition) -> None:
         if self._pending_s_since is None and not self._just_left(now):
             self._violation(now, ViolationKind.UNEXPECTED_FRAME, "R-P with no S outstanding")
@@ -463,15 +438,20 @@ class Autopilot:
                 self._violation(now, ViolationKind.UNEXPECTED_FRAME, "R-F with no cast running")
             return
         self.probe_depth_m = message.depth_m
+        self.error_last = 0
         log = self.logs[self.index]
         log.finished_at = now
         log.finish_depth_mm = message.depth_mm
         if self.config.check_plan:
             if log.reports == 0 and not log.station.too_shallow:
+                # With the cable out during the station, the R-M were lost on it: the
+                # R-F (or its repeat) that arrives after cannot tell a refusal.
+                since = log.acked_at if log.acked_at is not None else now
                 self._violation(
                     now,
                     ViolationKind.UNEXPECTED_SKIP,
                     f"R-F without a cast in {log.station.water_depth_m:.2f} m of water",
+                    excused_by=self._cable_out(since, now),
                 )
             elif log.reports > 0 and log.station.too_shallow:
                 self._violation(
@@ -574,14 +554,19 @@ class Autopilot:
         if station is not None:
             self.logs[self.index].violations.append(violation)
 
+    def _cable_out(self, since: float, now: float) -> str | None:
+        """The excuse of a cable pulled within [since, now] (and the reconnect after)."""
+        for outage in self._outages:
+            up = outage.up
+            end = float("inf") if up is None else up + self.config.outage_grace_s
+            if since <= end and now >= outage.down:
+                return "the cable was unplugged"
+        return None
+
     def _excuse(self, kind: ViolationKind, since: float, now: float) -> str | None:
         config = self.config
-        if kind in EXPLAINED_BY_INBOUND_LOSS:
-            for outage in self._outages:
-                up = outage.up
-                end = float("inf") if up is None else up + config.outage_grace_s
-                if since <= end and now >= outage.down:
-                    return "the cable was unplugged"
+        if kind in EXPLAINED_BY_INBOUND_LOSS and (cable := self._cable_out(since, now)):
+            return cable
         # A corrupt frame's bytes arrived after whatever came before it: its
         # window is exact. A missing answer may be the victim of a frame
         # mangled just before the window opened.

@@ -160,6 +160,7 @@ class Summary:
     survey_complete: bool = True  # every station visited and measured (or rightly skipped)
     probe_went_down: bool = True  # some cast lowered the probe
     first_cast_id: int | None = None  # a cast of this run worth plotting
+    stranded_at: int | None = None  # the station held with R-L and no R-F (its number)
 
     @property
     def problems(self) -> list[Violation]:
@@ -254,6 +255,11 @@ def verdict_line(summary: Summary) -> str:
     noun = "station" if castable == 1 else "stations"
     measured = f"{summary.measured} of {castable} castable {noun} measured"
     survey = "SURVEY OK" if summary.survey_complete else "SURVEY INCOMPLETE"
+    if summary.stranded_at is not None:
+        survey = (
+            f"SURVEY HALTED: probe stranded at S{summary.stranded_at}, "
+            "fault reported to the autopilot"
+        )
     n = len(summary.problems)
     if summary.protocol_kept:
         protocol = "the daemon kept the protocol"
@@ -270,6 +276,11 @@ def _ending(summary: Summary) -> str | None:
     """How the run ended for the probe, saying only what is known."""
     depth = summary.probe_depth_m
     at = "" if depth is None else f" at {depth:.2f} m"
+    if summary.stranded_at is not None:
+        return (
+            f"the probe stranded{at}: the daemon sent R-L (the fault, for the ground "
+            "station) and no R-F; recover it by hand"
+        )
     if summary.daemon_exit == EXIT_PROBE_MAY_BE_DOWN:
         return f"stopped at once: the probe may be down{at}"
     if not summary.interrupted:
@@ -375,7 +386,7 @@ class SimConsole:
         text = describe_frame(message)
         self.received.append(f"{elapsed_s:7.1f} s  ← {text}")
         # Plain lines show the cast's progress; R-O and R-P are narrated or routine.
-        if not self.live and message.frame in ("R-M", "R-F"):
+        if not self.live and message.frame in ("R-M", "R-F", "R-L"):
             self._line(f"{elapsed_s:7.1f} s  ← {text}")
 
     def corrupt_in(self, elapsed_s: float, error: CorruptFrame) -> None:

@@ -30,12 +30,14 @@ if TYPE_CHECKING:
 EXIT_OK = 0
 EXIT_FAILED = 1  # the protocol was broken, or the daemon failed
 EXIT_SURVEY_INCOMPLETE = 3  # the protocol kept, but a castable station was not measured
+EXIT_SURVEY_HALTED = 4  # the protocol kept: a probe stranded, its fault reported (R-L)
 EXIT_STATUSES = (
     "Exit status: 0 the daemon kept the protocol and every castable station was measured; "
     "1 a protocol violation (or the daemon failed); 3 the protocol kept, but a castable "
-    "station was not measured (a cast aborted or left unfinished, a stranded probe, an "
-    f"interrupted run); {EXIT_PROBE_MAY_BE_DOWN} the daemon was stopped at once and the "
-    "probe may be down; 2 bad usage."
+    "station was not measured (a cast aborted or left unfinished, an interrupted run); "
+    "4 the survey halted: the probe stranded at a station and the daemon reported the "
+    f"fault (R-L) instead of R-F; {EXIT_PROBE_MAY_BE_DOWN} the daemon was stopped at once "
+    "and the probe may be down; 2 bad usage."
 )
 REARM_HINT = (
     "hint: 'deep station not cast' right after R-O is what a daemon that finished a cast "
@@ -96,7 +98,13 @@ def _withheld_rightly(violation: Violation, run: Run) -> Violation:
     """A missing R-F at a station where the daemon's winch failed is the protocol
     kept, not broken: R-F is for a probe that is home, and this one is not."""
     fault = run.faults.get(violation.station) if violation.station is not None else None
-    if violation.kind is not ViolationKind.NO_FINISH or violation.excused or fault is None:
+    if violation.kind is not ViolationKind.NO_FINISH or violation.excused:
+        return violation
+    if fault is None and violation.station is not None:
+        log = run.autopilot.logs[violation.station - 1]
+        if log.fault_reports:  # what the daemon said on the wire, here or remote
+            return replace(violation, excused_by="the daemon reported the fault (R-L)")
+    if fault is None:
         return violation
     return replace(violation, excused_by=f"the winch failed ({fault}): R-F rightly withheld")
 
@@ -146,7 +154,14 @@ def build_summary(
         problems_here = [v for v in violations if v.station == number and not v.excused]
         ok = not problems_here and log.finished_at is not None
         outcome = recorded[-1].outcome if recorded else None
-        if ok and outcome == "aborted":
+        if ok and verdict.startswith("skipped") and outcome == "completed":
+            # The journal holds the cast; its R-M were lost while the cable was out.
+            verdict = "measured"
+            extra_notes.append(
+                f"S{number}: no R-M arrived (the cable was out) but the journal holds the "
+                f"cast, completed"
+            )
+        elif ok and outcome == "aborted":
             reason = recorded[-1].reason or "no reason given"
             verdict = f"aborted: {reason.removeprefix('winch fault: ')}"
         elif ok and number in run.faults and log.reports:
@@ -226,7 +241,20 @@ def build_summary(
         and not run.interrupts
         and all(row.ok for row in rows)
     )
-    if daemon_exit == EXIT_PROBE_MAY_BE_DOWN:
+    stranded_at = next(
+        (log.station.number for log in ap.logs if log.fault_reports and not log.finished_at),
+        None,
+    )
+    for log in ap.logs:
+        if log.fault_reports:
+            extra_notes.append(
+                f"S{log.station.number}: {log.fault_reports} R-L (fault reported; the "
+                f"firmware's error_last 76 for the ground station), the last at "
+                f"{log.fault_depth_m:.2f} m"
+            )
+    if stranded_at is not None and protocol_kept:
+        code = EXIT_SURVEY_HALTED
+    elif daemon_exit == EXIT_PROBE_MAY_BE_DOWN:
         code = EXIT_PROBE_MAY_BE_DOWN
     elif not protocol_kept:
         code = EXIT_FAILED
@@ -268,6 +296,7 @@ def build_summary(
         first_cast_id=next(
             (c.cast_id for c in casts or [] if (c.reached_depth_m or 0.0) > 0.0), None
         ),
+        stranded_at=stranded_at,
         probe_went_down=any(log.reports for log in ap.logs)
         or any((c.reached_depth_m or 0.0) > 0.0 for c in casts or []),
     )

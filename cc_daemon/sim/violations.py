@@ -61,6 +61,8 @@ class StationLog:
     s_sent: int = 0
     stick_down: int = 0  # P-D frames sent (the scripted jog)
     stick_up: int = 0
+    fault_reports: int = 0  # R-L frames: the daemon says the probe may be down
+    fault_depth_m: float | None = None  # the depth the last R-L carried
     violations: list[Violation] = field(default_factory=list)
 
     @property
@@ -79,6 +81,8 @@ class StationLog:
         if self.arrived_at is None:
             return "not reached"
         if self.finished_at is None:
+            if self.fault_reports:
+                return f"stranded: R-L x{self.fault_reports}, no R-F"
             return "no R-F"
         if self.problems:
             return "FAILED: " + ", ".join(sorted({str(v.kind) for v in self.problems}))

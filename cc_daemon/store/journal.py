@@ -8,11 +8,9 @@ wall-clock UTC, whether the clock looked synchronised), hands it to the buffered
 writer (`writer.BufferedWriter`) and returns in about a microsecond; it never raises
 into the daemon, nor drops a cast sample while a fix or an event could go instead.
 
-With a `telemetry_rate_hz` (the daemon always gives one), fixes are thinned to
-that rate (`thinning.FixThinner`: the latest of each interval kept, the others
-counted in a `telemetry_thinned` event at most every minute) and the buffer is
-sized from it (`buffer_rows`), so that no input can fill the disk or the memory
-faster than a known bound.
+Fixes are thinned to `telemetry_rate_hz` (`thinning.FixThinner`: the latest of each
+interval kept, the rest counted in a `telemetry_thinned` event at most every minute)
+and the buffer sized from it: no input fills the disk or the memory past a bound.
 """
 
 from __future__ import annotations
@@ -156,6 +154,7 @@ class Journal(BufferedWriter):
         # Writer only (open() uses them before the writer starts).
         self._session_id: int | None = None
         self._recovered = False
+        self.recovered: list[int] = []  # casts this open found with no end (a crash)
         self._id_map: dict[int, int] = {}
         # Start rows of casts committed but not yet ended, by the id they were
         # recorded with: written again if the run moves to a fresh file.
@@ -472,7 +471,8 @@ class Journal(BufferedWriter):
                 reached_depth_m=reached,
                 path=str(path),
             )
-        return [cast_id for cast_id, _, _ in prepared]
+        self.recovered = [cast_id for cast_id, _, _ in prepared]
+        return self.recovered
 
     def _committed(self, rows: list[Row], refused: set[int], new_ids: dict[int, int]) -> None:
         self._id_map.update(new_ids)

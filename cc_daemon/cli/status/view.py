@@ -100,6 +100,15 @@ def status_lines(doc: Document) -> list[tuple[str, str]]:
     if planned is not None:
         text += f" of {planned:.2f} m planned"
     rows.append(("cast", text))
+    reported = cast.get("fault_reported")
+    if isinstance(reported, dict):
+        rows.append(
+            (
+                "STRANDED",
+                f"probe at {reported.get('depth_m', 0):.2f} m ({reported.get('fault')}); "
+                f"R-L sent to the autopilot x{reported.get('r_l_sent', 0)}, no R-F",
+            )
+        )
     w = _section(doc, "winch")
     motion = "moving" if w.get("moving") else "stopped"
     home = ", home" if w.get("at_home") else ""

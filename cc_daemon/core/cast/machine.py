@@ -12,9 +12,12 @@ Safety rules enforced here:
   home. A fault, a timeout or a shutdown moves to ABORTING, which brings the
   probe home first.
 - If the probe cannot be brought home the cast is STRANDED: the motor is
-  stopped, no R-F is sent, depth reports keep giving the last known depth and an
-  alarm is raised every report period. STRANDED is left only when the winch
-  reports the probe home again (an operator hauled it in).
+  stopped, no R-F is sent, the shell reports the last known depth as `R-L` (the
+  fault report the firmware hands to the ground station) every report period
+  and an alarm is raised with it. STRANDED is left only when the winch reports
+  the probe verified home again (`verified_home`: an operator hauled it in).
+- A station on a winch that refuses casts (`refused`) starts STRANDED: R-O,
+  then R-L at once and every period, never a cast, R-F only at a verified home.
 - Depth reports are due on absolute deadlines `started_at + k * period`, so
   they never drift; a late step sends one report, never a burst.
 """
@@ -27,7 +30,7 @@ from enum import StrEnum
 
 from cc_daemon.core.cast.plan import CastPlan, Leg, Move, Phase
 from cc_daemon.core.errors import TransitionError
-from cc_daemon.core.winch.status import WinchStatus
+from cc_daemon.core.winch.status import WinchStatus, verified_home
 
 
 class Outcome(StrEnum):
@@ -107,7 +110,7 @@ class CastMachine:
         self.report_period_s = report_period_s
         self.max_duration_s = max_duration_s
         self.home_timeout_s = max_duration_s if home_timeout_s is None else home_timeout_s
-        self.phase: Phase = plan.legs[0].phase
+        self.phase: Phase = plan.legs[0].phase if plan.legs else Phase.STRANDED
         self.depth_m = 0.0
         self.reached_depth_m = 0.0
         self.abort_reason: str | None = None
@@ -144,6 +147,29 @@ class CastMachine:
         machine.abort_reason = reason
         return machine
 
+    @classmethod
+    def refused(
+        cls, *, started_at: float, report_period_s: float, depth_m: float, fault: str
+    ) -> CastMachine:
+        """A station the winch cannot serve (its homing failed, a fault with the
+        probe not verified home): no cast at all, the fault reported at once and
+        every period; it ends (R-F) only when the winch reports a verified home."""
+        plan = CastPlan(
+            depth_m=0.0, limited_by="target", water_depth_m=None, mode="refused", legs=()
+        )
+        machine = cls(
+            plan,
+            started_at=started_at,
+            report_period_s=report_period_s,
+            max_duration_s=math.inf,
+        )
+        machine.phase = Phase.STRANDED
+        machine.depth_m = depth_m
+        machine.winch_fault = fault
+        machine.abort_reason = f"cast refused: {fault}"
+        machine._next_report = started_at  # the first fault report at once
+        return machine
+
     # ------------------------------------------------------------ queries
 
     @property
@@ -175,7 +201,7 @@ class CastMachine:
         if status.fault is not None:
             self.winch_fault = status.fault
         if self.phase is Phase.STRANDED:
-            if status.at_home and not status.moving:
+            if verified_home(status):
                 self._finish(out, status)
                 return out
         elif now >= self._deadline:
@@ -201,6 +227,18 @@ class CastMachine:
         if self.phase in (Phase.ABORTING, Phase.STRANDED, Phase.FINISHED):
             return out
         self._abort(out, now, reason)
+        return out
+
+    def operator_release(self, reason: str) -> list[Action]:
+        """An operator who has seen the probe on board ends a stranded station
+        (a broken witness: the winch can never verify home). STRANDED only."""
+        out: list[Action] = []
+        if self.phase is not Phase.STRANDED:
+            return out
+        self.abort_reason = f"released by an operator: {reason}"
+        out.append(StopWinch("operator release"))
+        self._enter(out, Phase.FINISHED, self.abort_reason)
+        out.append(SendFinished(0.0, self.outcome, self.abort_reason, Phase.STRANDED))
         return out
 
     def bottom_contact(self, now: float, depth_m: float) -> list[Action]:

@@ -33,6 +33,7 @@ from cc_daemon.core.protocol.messages import (
     TIMESTAMP_WIRE_MOD,
     Ack,
     DepthReport,
+    FaultReport,
     Finished,
     Message,
     ProbeDown,
@@ -69,6 +70,7 @@ class CcType(IntEnum):
     DEPTH = 0x4D  # "M"
     FINISHED = 0x46  # "F"
     PROBE_POSITION = 0x50  # "P"
+    FAULT = 0x4C  # "L": the firmware's error report; we send it while stranded
 
 
 MIN_FRAME_LENGTH = 6
@@ -164,6 +166,8 @@ def encode(message: Message, *, start_type: int = AutopilotType.START_MEASURING)
             return _encode_depth(CcType.FINISHED, message[0], message[1])
         case ProbePosition():
             return _encode_depth(CcType.PROBE_POSITION, message[0], message[1])
+        case FaultReport():
+            return _encode_depth(CcType.FAULT, message[0], message[1])
     raise TypeError(f"not a protocol message: {message!r}")
 
 
@@ -240,7 +244,9 @@ def _timestamp_decoder(
     return decode
 
 
-def _depth_decoder(cls: type[DepthReport] | type[Finished] | type[ProbePosition]) -> Decoder:
+def _depth_decoder(
+    cls: type[DepthReport] | type[Finished] | type[ProbePosition] | type[FaultReport],
+) -> Decoder:
     def decode(buf: bytes | bytearray, start: int) -> Message:
         return _new(
             cls, (buf[start + 2] << 8 | buf[start + 3], buf[start + 4] << 8 | buf[start + 5])
@@ -302,4 +308,5 @@ CC_LAYOUTS: dict[int, Layout] = {
     _key(Sync.CC, CcType.PROBE_POSITION): Layout(
         "R-P", WITH_DEPTH_LENGTH, _depth_decoder(ProbePosition)
     ),
+    _key(Sync.CC, CcType.FAULT): Layout("R-L", WITH_DEPTH_LENGTH, _depth_decoder(FaultReport)),
 }

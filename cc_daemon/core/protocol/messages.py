@@ -248,8 +248,21 @@ class ProbePosition(_DepthMessage):
     frame = "R-P"
 
 
+class FaultReport(_DepthMessage):
+    """`R-L`: the probe may be down and cannot come home; sent in place of `R-M`.
+
+    The 2023 firmware's `R` parser stores the type byte (76) as its receive
+    error, which its SERIAL_COM telemetry carries to the ground station, and
+    goes on waiting at the station (it is not `R-F`). It does not read the
+    depth; we carry the best estimate there for `decode` and the logs.
+    """
+
+    __slots__ = ()
+    frame = "R-L"
+
+
 AutopilotMessage = Telemetry | StartMeasuring | ProbePositionRequest | ProbeUp | ProbeDown
-CcMessage = Ack | DepthReport | Finished | ProbePosition
+CcMessage = Ack | DepthReport | Finished | ProbePosition | FaultReport
 Message = AutopilotMessage | CcMessage
 
 MESSAGE_TYPES: tuple[type[Message], ...] = (
@@ -262,6 +275,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     DepthReport,
     Finished,
     ProbePosition,
+    FaultReport,
 )
 
 

@@ -28,6 +28,27 @@ class WinchStatus(NamedTuple):
     fault: str | None  # why the winch last stopped short, if it did
 
 
+HOMING_FAILED = "homing failed"  # how a start-up homing fault's text begins
+
+
+def verified_home(status: WinchStatus) -> bool:
+    """Home as R-F may rely on: the winch says home, is still, and its start-up
+    homing has not failed (a winch that could not home cannot vouch for home)."""
+    return (
+        status.at_home
+        and not status.moving
+        and not (status.fault is not None and status.fault.startswith(HOMING_FAILED))
+    )
+
+
+def refuses_casts(status: WinchStatus) -> bool:
+    """A winch no cast may start on: its homing failed, or it reports a fault with
+    the probe not verified home (the probe may be down and nothing can vouch)."""
+    if status.fault is None:
+        return False
+    return status.fault.startswith(HOMING_FAILED) or not status.at_home
+
+
 class Winch(Protocol):
     def status(self) -> WinchStatus: ...
 
