@@ -106,3 +106,22 @@ def test_the_daemon_exits_2_before_opening_anything(tmp_path: Path) -> None:
 
 def test_default_parameters_are_the_settings_default() -> None:
     assert SondeSettings().parameters == DEFAULT_PARAMETERS
+
+
+def test_the_shipped_october_2025_map_loads(tmp_path: Path) -> None:
+    """The commented alternative in config/cc-daemon.toml, uncommented, is valid."""
+    import tomllib
+
+    text = (Path(__file__).parents[1] / "config" / "cc-daemon.toml").read_text()
+    start = text.index("# --- the group's October 2025 map")
+    end = text.index("# --- end of the October 2025 map ---")
+    lines = text[start:end].splitlines()
+    body = "\n".join(ln.removeprefix("# ") for ln in lines if ln.startswith("# [") or "=" in ln)
+    parameters = tomllib.loads(body)["sonde"]["parameters"]
+    s = SondeSettings.model_validate(
+        {"parameters": parameters, "timeout_s": 0.5, "retries": 1, "period_s": 1.0}
+    )
+    assert [p.address for p in s.parameters] == [30101, *range(31001, 31602, 100)]
+    assert [p.name for p in s.parameters][-1] == "conductivity"
+    assert {p.type for p in s.parameters} == {"float32"}
+    assert {p.word_order for p in s.parameters} == {"big"}
