@@ -303,6 +303,10 @@ class SonarSettings(BaseModel):
     restart_after_s: _Positive = 3.0
     reconnect_initial_s: _Positive = 0.2
     reconnect_max_s: _Positive = 5.0
+    # At most this many readings a second go into the journal (the stream's
+    # nominal 4 Hz by default); the rest are counted and summarised in events.
+    # Bounded so that no stream, however fast, grows the journal past ~1 MB/min.
+    journal_rate_hz: Annotated[float, Field(ge=0.1, le=50.0)] = 4.0
 
     @model_validator(mode="after")
     def _check(self) -> SonarSettings:

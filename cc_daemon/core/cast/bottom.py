@@ -2,7 +2,7 @@
 
 Pure. The autopilot's `M` frame carries its sonar's reading; a boat with a
 Ping1D wired to the companion computer has a second one (`[sonar]`). This
-module picks, among readings at or above the confidence the planner trusts
+module picks, among valid readings (`sounding_valid`) at or above the confidence the planner trusts
 and no older than `max_age_s`, the one that arrived last, and hands the
 planner a start-measuring frame carrying it. With none usable, the frame goes
 to the planner as it came (and the planner ignores a bottom it cannot trust).
@@ -21,6 +21,17 @@ from cc_daemon.core.protocol import StartMeasuring
 AUTOPILOT = "autopilot"
 ONBOARD = "onboard"
 
+# A Ping1D's distance is a u32: all ones means "no distance". Its confidence is a
+# percentage: above 100 it is not one. Such a reading is stored as it came and
+# flagged invalid, never trusted for a bottom.
+NO_DISTANCE_MM = 0xFFFFFFFF
+MAX_CONFIDENCE_PCT = 100
+
+
+def sounding_valid(distance_mm: int, confidence_pct: int) -> bool:
+    """Whether a (distance, confidence) pair can be a true reading at all."""
+    return 0 <= confidence_pct <= MAX_CONFIDENCE_PCT and 0 <= distance_mm < NO_DISTANCE_MM
+
 
 @dataclass(frozen=True, slots=True)
 class Sounding:
@@ -30,6 +41,10 @@ class Sounding:
     distance_mm: int
     confidence_pct: int
     at: float
+
+    @property
+    def valid(self) -> bool:
+        return sounding_valid(self.distance_mm, self.confidence_pct)
 
 
 def freshest_bottom(
@@ -42,7 +57,9 @@ def freshest_bottom(
     """
     best: Sounding | None = None
     for sounding in soundings:
-        if sounding.confidence_pct < min_confidence or not 0 <= now - sounding.at <= max_age_s:
+        if not sounding.valid or sounding.confidence_pct < min_confidence:
+            continue
+        if not 0 <= now - sounding.at <= max_age_s:
             continue
         if best is None or sounding.at > best.at:
             best = sounding

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal, Protocol
 
+from cc_daemon.core.cast.bottom import sounding_valid
 from cc_daemon.core.protocol import StartMeasuring
 
 # A stop a hair shallower than the target is not worth a separate dwell.
@@ -111,7 +112,8 @@ def plan_cast(
     depth = settings.target_depth_m
     limited_by: LimitedBy = "target"
     water_depth: float | None = None
-    if station.sonar_confidence_pct >= settings.min_sonar_confidence:
+    trusted = sounding_valid(station.sonar_distance_mm, station.sonar_confidence_pct)
+    if trusted and station.sonar_confidence_pct >= settings.min_sonar_confidence:
         water_depth = station.sonar_distance_mm / 1000.0
         above_bottom = water_depth - settings.bottom_clearance_m
         if above_bottom < depth:
