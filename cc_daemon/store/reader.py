@@ -29,7 +29,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from cc_daemon.store import schema, sonde
+from cc_daemon.store import schema, sonar, sonde
 from cc_daemon.store.schema import StoreError
 
 # SQLite's primary result codes for "may not write here" and "cannot open".
@@ -352,6 +352,12 @@ class JournalReader:
     ) -> list[sonde.SondeSampleRecord]:
         """The sonde's readings in time order (`store.sonde`)."""
         return sonde.read_samples(self._conn, cast_id=cast_id, since=since)
+
+    def sonar_readings(
+        self, *, since: float | None = None, until: float | None = None
+    ) -> list[sonar.SonarReadingRecord]:
+        """The daemon's own sonar readings in time order (`store.sonar`)."""
+        return sonar.read_readings(self._conn, since=since, until=until)
 
     def _cast_end(self, cast: CastRecord) -> tuple[float, float]:
         """When a cast's data ends: its end row, else its last sample, else its start."""
