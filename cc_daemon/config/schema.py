@@ -261,7 +261,10 @@ class StoreSettings(BaseModel):
     # None lets the journal choose its default location. Where the file may be
     # (not a directory, a device, /proc...) is checked at start, not here: that
     # needs the filesystem (see cc_daemon/daemon/preflight.py).
-    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
+    # A path arrives as text from every source: lax here, so text becomes a Path.
+    path: Annotated[
+        Path | None, Field(strict=False), BeforeValidator(_empty_is_none), AfterValidator(_no_nul)
+    ] = None
     # Telemetry fixes written to the journal per second at most: the latest of
     # each interval is kept, the rest counted. Bounds the disk a babbling
     # autopilot can fill, and the memory the unwritten rows can take.
@@ -286,7 +289,10 @@ class StatusSettings(BaseModel):
 
     enabled: bool = True
     # None: $RUNTIME_DIRECTORY/status.sock under systemd, else no socket.
-    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
+    # A path arrives as text from every source: lax here, so text becomes a Path.
+    path: Annotated[
+        Path | None, Field(strict=False), BeforeValidator(_empty_is_none), AfterValidator(_no_nul)
+    ] = None
     max_clients: Annotated[int, Field(ge=1, le=1024)] = 32
     client_timeout_s: Annotated[float, Field(ge=0.1, le=60.0)] = 2.0
 
@@ -322,7 +328,7 @@ class SonarSettings(BaseModel):
 class Settings(BaseSettings):
     """The whole configuration, frozen. Build it with `load_settings` to read sources."""
 
-    model_config = SettingsConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = SettingsConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
     serial: SerialSettings = SerialSettings()
     winch: WinchSettings = WinchSettings()

@@ -33,7 +33,7 @@ MAX_REGISTERS_PER_READ = 125
 _BAUDRATES = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
 DataType = Literal["float32", "int32", "uint32", "int16", "uint16"]
 
-_SECTION = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+_SECTION = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 _Positive = Annotated[float, Field(gt=0)]
 
 
@@ -73,7 +73,7 @@ class SondeParameter(BaseModel):
     """One value the sonde reports: where it is, how to decode it, what it means."""
 
     model_config = ConfigDict(
-        extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True
+        extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True, strict=True
     )
 
     # Column and variable name in the exports: lower case, digits and underscores.
@@ -175,7 +175,8 @@ class SondeSettings(BaseModel):
     depth_disagreement_m: _Positive = 1.0
     bottom_contact_s: Annotated[float, Field(ge=0.1, le=600.0)] = 5.0
     bottom_contact_tolerance_m: _Positive = 0.05
-    parameters: tuple[SondeParameter, ...] = DEFAULT_PARAMETERS
+    # A TOML array of tables arrives as a list; each table is checked strictly.
+    parameters: Annotated[tuple[SondeParameter, ...], Field(strict=False)] = DEFAULT_PARAMETERS
 
     @model_validator(mode="after")
     def _check(self) -> SondeSettings:
