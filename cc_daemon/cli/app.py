@@ -38,6 +38,7 @@ from cc_daemon.cli.decode import (
     print_events,
     read_stdin_chunks,
 )
+from cc_daemon.cli.output import guarded
 from cc_daemon.core.errors import ConfigError, WinchFault
 
 EXIT_USAGE = 2
@@ -290,7 +291,24 @@ def _ignore_hangup() -> None:
     structlog.get_logger("cc_daemon.cli").info("SIGHUP ignored: nothing to reload")
 
 
+def _dispatch(args: argparse.Namespace) -> int:
+    handler = getattr(args, "handler", None)
+    if handler is not None:
+        code: int = handler(args)
+        return code
+    if args.simulate:
+        from cc_daemon.sim.commands import run_from_args
+
+        return run_from_args(args, _load(args))
+    return _run_daemon(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """The `cc-daemon` command; its output watched (`output.guarded`)."""
+    return guarded(lambda: _main(argv))
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     words = sys.argv[1:] if argv is None else argv
@@ -299,15 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"cc-daemon: {', '.join(stray)} applies only with --simulate", file=sys.stderr)
         return EXIT_USAGE
     try:
-        handler = getattr(args, "handler", None)
-        if handler is not None:
-            code: int = handler(args)
-            return code
-        if args.simulate:
-            from cc_daemon.sim.commands import run_from_args
-
-            return run_from_args(args, _load(args))
-        return _run_daemon(args)
+        return _dispatch(args)
     except ConfigError as exc:
         print(str(exc), file=sys.stderr)
         return EXIT_USAGE
