@@ -288,7 +288,8 @@ class StatusSettings(BaseModel):
     model_config = _SECTION
 
     enabled: bool = True
-    # None: $RUNTIME_DIRECTORY/status.sock under systemd, else no socket.
+    # None: by the rule of config/statuspaths.py ($RUNTIME_DIRECTORY under systemd;
+    # by hand, beside the journal or in $XDG_RUNTIME_DIR).
     # A path arrives as text from every source: lax here, so text becomes a Path.
     path: Annotated[
         Path | None, Field(strict=False), BeforeValidator(_empty_is_none), AfterValidator(_no_nul)
