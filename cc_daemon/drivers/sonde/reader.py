@@ -317,6 +317,8 @@ class SondeReader:
         timeout = self.settings.timeout_s
         failure = (NO_TIME, f"no time left in the {self.settings.period_s:g} s period")
         for _attempt in range(1 + self.settings.retries):
+            if self._port is None:  # lost during this reading: the rest cannot be asked
+                return {}, (DISCONNECTED, self.last_reason or "the port closed")
             shape = self._shape(block)
             if shape is None:
                 return {}, (RESYNC, "every request shape is owed a late reply; not asked")
@@ -324,6 +326,10 @@ class SondeReader:
                 break  # a retry (or a request) that cannot end within the period is skipped
             registers: list[int] = []
             for address, count in shape:
+                if self._port is None:
+                    outcome: list[int] | tuple[str, str] = (DISCONNECTED, "the port closed")
+                    failure = outcome
+                    break
                 outcome = await self._ask(address, count, block if len(shape) == 1 else None, late)
                 if isinstance(outcome, tuple):
                     if outcome[0] == EXCEPTION and len(shape) > 1 and shape[0][1] % 2:
