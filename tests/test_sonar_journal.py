@@ -8,6 +8,7 @@ the rest summarised in events: the file's growth is measured.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sqlite3
 from pathlib import Path
@@ -122,3 +123,44 @@ def test_thinning_that_stops_and_starts_again_is_said_again(tmp_path: Path) -> N
         "sonar_thinning_started", "sonar_thinned", "sonar_thinning_started", "sonar_thinned",
     ]  # fmt: skip
     assert sum(d["count"] for d in details) == 1000 - 40 + 100 - 4
+
+
+async def test_a_real_ping_streaming_fast_over_a_pty_is_thinned(tmp_path: Path) -> None:
+    """The simulated Ping1D streaming every millisecond, read by the daemon's own
+    reader over a real pty into a real journal: rows at the journal rate only."""
+    import asyncio
+
+    from cc_daemon.ground.clock import SystemClock
+    from cc_daemon.sim.ping1d import Echo, Ping1DDevice, Ping1DServer
+    from cc_daemon.sim.pty import PtyPair
+
+    pair = PtyPair(tmp_path / "ttyPING")
+    server = await Ping1DServer.over_fd(
+        pair.master_fd, Ping1DDevice(lambda: Echo(3000, 95), interval_s=0.001)
+    )
+    db = tmp_path / "j.db"
+    journal = Journal(db)
+    journal.open()
+    settings = Settings.model_validate({"sonar": {"port": str(pair.path)}})
+    sonar = OnboardSonar(settings.sonar, clock=SystemClock(), journal=lambda: journal)
+    task = asyncio.create_task(sonar.run())
+    try:
+        await asyncio.sleep(3.0)
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        await server.close()
+        pair.close()
+        journal.close()
+    heard = sonar.reader.client.readings
+    with sqlite3.connect(db) as conn:
+        (rows,) = conn.execute("SELECT COUNT(*) FROM sonar_readings").fetchone()
+        summaries = [json.loads(d) for (d,) in conn.execute(
+            "SELECT detail_json FROM events WHERE kind = 'sonar_thinned'")]  # fmt: skip
+        (started,) = conn.execute(
+            "SELECT COUNT(*) FROM events WHERE kind = 'sonar_thinning_started'"
+        ).fetchone()
+    assert heard > 300, heard  # far faster than the nominal 4 a second
+    assert rows <= 4 * 3 + 2
+    assert started == 1 and sum(d["count"] for d in summaries) + rows == heard
