@@ -164,3 +164,9 @@ async def test_a_real_ping_streaming_fast_over_a_pty_is_thinned(tmp_path: Path) 
     assert heard > 300, heard  # far faster than the nominal 4 a second
     assert rows <= 4 * 3 + 2
     assert started == 1 and sum(d["count"] for d in summaries) + rows == heard
+
+
+def test_a_kilometre_or_more_is_no_bottom_and_no_echo_is_a_true_report() -> None:
+    assert not SonarReading(1_000_000, 90, 0.0).valid
+    assert SonarReading(999_999, 90, 0.0).valid
+    assert SonarReading(0, 0, 0.0).valid  # a dropout: a true report of no echo

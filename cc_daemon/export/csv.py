@@ -126,8 +126,8 @@ def write_events(events: Iterable[EventRecord], out: TextIO) -> int:
 def write_sonar(readings: Iterable[SonarReadingRecord], out: TextIO) -> int:
     """One row per journaled reading of the daemon's own Ping1D, as it arrived.
 
-    `valid` is 0 for a reading that cannot be true (confidence above 100, the
-    all-ones "no distance"): its values are written as they came, never mended.
+    `valid` is 0 for a reading that cannot be true (confidence above 100, a
+    distance of 1 km or more): its values are written as they came, never mended.
     """
     writer = csv.writer(out)
     writer.writerow(SONAR_COLUMNS)

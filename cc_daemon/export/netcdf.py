@@ -229,7 +229,7 @@ def _write_sonar(nc: Any, readings: Sequence[SonarReadingRecord]) -> None:
     var(
         "sonar_valid", "i1", long_name="sonar reading can be true",
         flag_values=np.array([0, 1], dtype="i1"), flag_meanings="invalid valid",
-        comment="invalid: confidence above 100 or the all-ones distance (no distance)",
+        comment="invalid: confidence above 100, or a distance of 1 km or more",
         coordinates="sonar_time",
     )[:] = [int(r.valid) for r in readings]  # fmt: skip
 

@@ -21,16 +21,19 @@ from cc_daemon.core.protocol import StartMeasuring
 AUTOPILOT = "autopilot"
 ONBOARD = "onboard"
 
-# A Ping1D's distance is a u32: all ones means "no distance". Its confidence is a
-# percentage: above 100 it is not one. Such a reading is stored as it came and
-# flagged invalid, never trusted for a bottom.
+# No echosounder on a survey boat reads a bottom a kilometre down; a larger
+# distance is a sentinel or garbage: 4294967295 (all ones in a u32) is what a
+# Ping sends for "no distance". A confidence is a percentage: above 100 it is
+# not one. Such a reading is stored as it came and flagged invalid, never
+# trusted for a bottom. (0 mm with 0 % is a true report: no echo.)
 NO_DISTANCE_MM = 0xFFFFFFFF
+MAX_SOUNDING_MM = 1_000_000
 MAX_CONFIDENCE_PCT = 100
 
 
 def sounding_valid(distance_mm: int, confidence_pct: int) -> bool:
     """Whether a (distance, confidence) pair can be a true reading at all."""
-    return 0 <= confidence_pct <= MAX_CONFIDENCE_PCT and 0 <= distance_mm < NO_DISTANCE_MM
+    return 0 <= confidence_pct <= MAX_CONFIDENCE_PCT and 0 <= distance_mm < MAX_SOUNDING_MM
 
 
 @dataclass(frozen=True, slots=True)

@@ -47,7 +47,7 @@ class SonarReading:
 
     @property
     def valid(self) -> bool:
-        """False for a reading that cannot be true (confidence > 100, distance 0xFFFFFFFF)."""
+        """False for a reading that cannot be true (confidence > 100, distance >= 1 km)."""
         return sounding_valid(self.distance_mm, self.confidence_pct)
 
 
