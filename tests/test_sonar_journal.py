@@ -43,7 +43,8 @@ def test_impossible_readings_are_never_a_bottom() -> None:
     settings = Settings.model_validate({"cast": {"target_depth_m": 10.0}}).cast
     plan = plan_cast(station(sonar_mm=NO_DISTANCE_MM, confidence=100), settings, 100.0)
     assert isinstance(plan, CastPlan)
-    assert plan.water_depth_m is None and plan.limited_by == "target"
+    # No bottom taken from it ("target" here; main's planner then casts "blind").
+    assert plan.water_depth_m is None and plan.limited_by != "bottom"
     trusted = plan_cast(station(sonar_mm=8_000, confidence=100), settings, 100.0)
     assert isinstance(trusted, CastPlan) and trusted.water_depth_m == 8.0
 
