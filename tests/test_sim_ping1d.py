@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import re
 import statistics
+import sys
 import time
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
@@ -155,9 +157,11 @@ async def test_unknown_requests_are_nacked(
     rig: tuple[Ping1DServer, Host, ScriptedSounder],
 ) -> None:
     _, host, _ = rig
-    await host.send(ping.request(definitions.PING1D_PCB_TEMPERATURE))
+    # (pcb_temperature used to be NACKed here; a Ping1D answers it, and so does
+    # the simulated one now: an id no Ping1D reports is the unknown request.)
+    await host.send(ping.request(definitions.PING1D_CONTINUOUS_START))
     [nack] = await host.collect(1.5, until=1)
-    assert nack.message_id == ping.NACK and nack.nacked_id == definitions.PING1D_PCB_TEMPERATURE
+    assert nack.message_id == ping.NACK and nack.nacked_id == definitions.PING1D_CONTINUOUS_START
 
 
 def _brping_device(path: str, table: dict[int, Any] | None) -> tuple[Any, Any]:
@@ -217,3 +221,92 @@ def test_field_sounder_drops_confidence_in_shallow_or_steep_water_and_drops_out(
     assert sum(e == Echo(0, 0) for e in echoes) == under_way.dropouts
     held = [FieldSounder(mission, lambda: (deep.point, False), seed=s)() for s in range(50)]
     assert all(abs(e.distance_mm / 1000 - deep.water_depth_m) <= 0.07 for e in held)
+
+
+# Every get and set brping's own example (`python -m brping.ping1d`) makes.
+_GETS = (
+    "get_device_id", "get_distance", "get_distance_simple", "get_firmware_version",
+    "get_gain_setting", "get_general_info", "get_mode_auto", "get_oss_profile_configuration",
+    "get_pcb_temperature", "get_ping_enable", "get_ping_interval", "get_processor_temperature",
+    "get_profile", "get_range", "get_speed_of_sound", "get_transmit_duration", "get_voltage_5",
+)  # fmt: skip
+_SETS = (
+    ("set_device_id", (43,)), ("set_mode_auto", (False,)), ("set_range", (1000, 2000)),
+    ("set_speed_of_sound", (1444000,)), ("set_ping_interval", (36,)),
+    ("set_gain_setting", (3,)), ("set_ping_enable", (True,)),
+)  # fmt: skip
+
+
+def _brping_session(path: str) -> dict[str, Any]:
+    device = Ping1D(payload_dict=definitions.payload_dict_ping1d)
+    device.connect_serial(path, 115200)
+    try:
+        out: dict[str, Any] = {"initialize": device.initialize()}
+        out |= {name: getattr(device, name)() for name in _GETS}
+        out |= {name: getattr(device, name)(*args) for name, args in _SETS}  # verify=True
+        out["after"] = (device.get_range(), device.get_speed_of_sound(), device.get_device_id())
+        return out
+    finally:
+        device.iodev.close()
+
+
+async def test_brping_initialize_every_get_and_every_set_against_it(
+    pair: PtyPair, capsys: pytest.CaptureFixture[str]
+) -> None:
+    server = await Ping1DServer.over_fd(pair.master_fd, Ping1DDevice(ScriptedSounder()))
+    try:
+        out = await asyncio.to_thread(_brping_session, str(pair.path))
+    finally:
+        await server.close()
+    capsys.readouterr()
+    assert out["initialize"] is True  # protocol_version, then general_info (1210)
+    assert [name for name in _GETS if out[name] is None] == []
+    assert out["get_distance"]["distance"] >= 4000  # device_information, distance (1212) ...
+    # Each set is kept and read back. brping packs set_speed_of_sound (1002) with
+    # its default table, the S500's field `sos_mm_per_sec`: the Ping1D's
+    # `speed_of_sound` goes out as 0, so the read-back differs, as it would
+    # from a real Ping1D. The device keeps what it was sent.
+    assert [name for name, _ in _SETS if out[name] is not True] == ["set_speed_of_sound"]
+    rng, sos, device_id = out["after"]
+    assert rng == {"scan_start": 1000, "scan_length": 2000}
+    assert sos == {"speed_of_sound": 0} and device_id == {"device_id": 43}
+
+
+async def test_brpings_own_example_against_it(pair: PtyPair) -> None:
+    """`python -m brping.ping1d --device PTY` (docs/sonar.md, bench step 2), as shipped.
+
+    brping's example builds `Ping1D()` with its default table, in which 1203 and
+    1213 are the S500's (`sos_mm_per_sec`, a 4-byte `centi_degC`): it misreads a
+    Ping1D's processor temperature and stops at get_speed_of_sound with an
+    AttributeError, whatever answers. Every check before that passes.
+    """
+    server = await Ping1DServer.over_fd(pair.master_fd, Ping1DDevice(ScriptedSounder()))
+    try:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "brping.ping1d", "--device", str(pair.path),
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+        )  # fmt: skip
+        out, _ = await asyncio.wait_for(proc.communicate(), 60)
+    finally:
+        await server.close()
+    text = out.decode()
+    assert "Initialized: True" in text
+    results = re.findall(r"testing (\w+)\n(?:.*\n)*?  > > pass: (\w+) < <", text)
+    failed = [name for name, ok in results if ok != "True"]
+    assert failed == ["get_processor_temperature"], text  # brping's S500 layout for 1213
+    assert len(results) == 14 and "_speed_of_sound" in text
+
+
+def test_set_values_are_kept_and_acknowledged() -> None:
+    device = Ping1DDevice(lambda: Echo(4200, 97))
+    stream = ping.PingStream()
+    acked = stream.feed(device.receive(0.0, ping.encode(1002, dst=1, speed_of_sound=1444000)))
+    assert [e.event for e in acked] == [ping.OtherMessage(1, (("acked_id", 1002),))]
+    (reply,) = stream.feed(device.receive(0.0, ping.request(ping.SPEED_OF_SOUND)))
+    assert reply.event == ping.SpeedOfSound(1444000)
+    stream.feed(device.receive(0.0, ping.encode(1001, dst=1, scan_start=500, scan_length=9000)))
+    (general,) = stream.feed(device.receive(0.0, ping.request(1212)))
+    fields = dict(general.event.fields)  # type: ignore[union-attr]
+    assert (fields["scan_start"], fields["scan_length"], fields["distance"]) == (500, 9000, 4200)
+    # The bootloader command gets no answer: a real Ping leaves the protocol.
+    assert device.receive(0.0, ping.encode(1100, dst=1)) == b""

@@ -154,3 +154,49 @@ async def test_a_port_that_is_not_there_is_retried_with_backoff(tmp_path: Path) 
     assert readings[0].error and "nothing-here" in readings[0].error
     assert all(r.duration_s < 0.1 for r in readings)  # a cast never waits for a missing sonde
     await reader.close()
+
+
+async def test_a_sonde_mapping_only_its_values_is_read_by_itself(tmp_path: Path) -> None:
+    """pymodbus's own server mapping only 40011-12 and 40029-40040: exception 2 for
+    the one 30-register block; the reader reads the mapped blocks from then on."""
+    with SimulatedSonde(
+        tmp_path / "ttySONDE", line_out=lambda: 0.0, model=Fixed(), only_mapped=True
+    ) as sim:
+        reader = SondeReader(settings(sim.path))
+        try:
+            readings = [await reader.read() for _ in range(3)]
+        finally:
+            await reader.close()
+    assert [r.status for r in readings] == [OK, OK, OK]
+    assert all(r.values == KNOWN for r in readings)
+    assert [r.requests for r in readings] == [3, 2, 2]
+    assert [(b.address, b.count) for b in reader.blocks] == [(10, 2), (28, 12)]
+
+
+async def test_the_october_2025_map_by_protocol_address(tmp_path: Path) -> None:
+    """The group's new map (raw addresses 30101, 31001 ... 31601) against pymodbus."""
+    names = ["depth", "temperature", "ph", "do_saturation", "do_concentration", "blue",
+             "chlorophyll", "conductivity"]  # fmt: skip
+    addresses = [30101, *range(31001, 31602, 100)]
+    params = [
+        {"name": n, "address": a, "unit": "1", "long_name": n}
+        for n, a in zip(names, addresses, strict=True)
+    ]
+    s = settings(tmp_path / "ttySONDE", parameters=params, timeout_s=0.5, retries=1)
+
+    class Values:
+        def read(self, line_out_m: float, t: float) -> dict[str, float]:
+            return {n: float(i) + 0.5 for i, n in enumerate(names)}
+
+    with SimulatedSonde(
+        tmp_path / "ttySONDE", line_out=lambda: 0.0, model=Values(),
+        parameters=s.parameters, only_mapped=True,
+    ) as sim:  # fmt: skip
+        reader = SondeReader(s)
+        try:
+            first, second = [await reader.read() for _ in range(2)]
+        finally:
+            await reader.close()
+        assert sim.requests >= 8
+    assert first.status == second.status == OK
+    assert second.values == {n: float(i) + 0.5 for i, n in enumerate(names)}

@@ -74,8 +74,20 @@ def test_bad_values_name_their_key(tmp_path: Path) -> None:
 def test_impossible_combinations(tmp_path: Path) -> None:
     (line,) = problems(tmp_path, '[cast]\ndepth_source = "sonde"\n')
     assert "cast.depth_source" in line and "sonde.backend" in line
-    (line,) = problems(tmp_path, "[sonde]\ntimeout_s = 0.6\nretries = 1\n")
-    assert "sonde.timeout_s = 0.6" in line and "impossible combination" in line
+    # One request must fit in a period (a retry that cannot fit is skipped, not refused).
+    (line,) = problems(tmp_path, "[sonde]\ntimeout_s = 1.0\nretries = 0\n")
+    assert "sonde.timeout_s = 1.0" in line and "impossible combination" in line
+    # Malacate's libmodbus wait (0.5 s) with one retry at 1 s is accepted.
+    malacate = tmp_path / "m.toml"
+    malacate.write_text("[sonde]\ntimeout_s = 0.5\nretries = 1\nperiod_s = 1.0\n")
+    assert load_settings(malacate, env={}, search_paths=()).sonde.retries == 1
+    (line,) = problems(
+        tmp_path,
+        '[[sonde.parameters]]\nname = "depth"\nregister = 40011\naddress = 10\n'
+        'unit = "m"\nlong_name = "d"\n',
+    )
+    assert "give exactly one of sonde.parameters.0.register" in line
+    assert "sonde.parameters.0.address = 10" in line
     overlapping = "".join(
         f'[[sonde.parameters]]\nname = "{n}"\nregister = {r}\nunit = "1"\nlong_name = "x"\n'
         for n, r in (("depth", 40011), ("b", 40012))
@@ -94,3 +106,22 @@ def test_the_daemon_exits_2_before_opening_anything(tmp_path: Path) -> None:
 
 def test_default_parameters_are_the_settings_default() -> None:
     assert SondeSettings().parameters == DEFAULT_PARAMETERS
+
+
+def test_the_shipped_october_2025_map_loads(tmp_path: Path) -> None:
+    """The commented alternative in config/cc-daemon.toml, uncommented, is valid."""
+    import tomllib
+
+    text = (Path(__file__).parents[1] / "config" / "cc-daemon.toml").read_text()
+    start = text.index("# --- the group's October 2025 map")
+    end = text.index("# --- end of the October 2025 map ---")
+    lines = text[start:end].splitlines()
+    body = "\n".join(ln.removeprefix("# ") for ln in lines if ln.startswith("# [") or "=" in ln)
+    parameters = tomllib.loads(body)["sonde"]["parameters"]
+    s = SondeSettings.model_validate(
+        {"parameters": parameters, "timeout_s": 0.5, "retries": 1, "period_s": 1.0}
+    )
+    assert [p.address for p in s.parameters] == [30101, *range(31001, 31602, 100)]
+    assert [p.name for p in s.parameters][-1] == "conductivity"
+    assert {p.type for p in s.parameters} == {"float32"}
+    assert {p.word_order for p in s.parameters} == {"big"}

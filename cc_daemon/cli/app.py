@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from cc_daemon import __version__
+from cc_daemon.cli.output import guarded
 from cc_daemon.core.errors import ConfigError, WinchFault
 from cc_daemon.ground.signals import SignalHold
 
@@ -345,6 +346,11 @@ def _simulate_only_options(
 
 
 def main(argv: Sequence[str] | None = None, *, held: SignalHold | None = None) -> int:
+    """The `cc-daemon` command; its output watched (`output.guarded`)."""
+    return guarded(lambda: _main(argv, held=held))
+
+
+def _main(argv: Sequence[str] | None = None, *, held: SignalHold | None = None) -> int:
     """`held`: the signals `cc_daemon.__main__` caught from the first instruction (caught
     here when called directly). The daemon keeps them; every other command gets its
     own handlers back, and what was held is raised again."""

@@ -132,7 +132,7 @@ def add_commands(
     export.add_argument("--format", required=True, choices=("csv", "geojson", "netcdf"))
     export.add_argument(
         "--what",
-        choices=("samples", "telemetry", "events"),
+        choices=("samples", "telemetry", "events", "sonar"),
         help="with --format csv: which records (default: samples)",
     )
     export.add_argument("--cast", type=_cast_id, metavar="N", help="only cast N (any survey)")
@@ -320,8 +320,8 @@ def _export(args: argparse.Namespace) -> int:
     if args.format == "netcdf" and args.output is None:
         raise _UsageError("--format netcdf needs -o FILE (NetCDF is not written to a pipe)")
     what = args.what or "samples"
-    if what == "events" and args.cast is not None:
-        raise _UsageError("--cast does not apply to --what events")
+    if what in ("events", "sonar") and args.cast is not None:
+        raise _UsageError(f"--cast does not apply to --what {what}")
     try:
         db = journal_path(args)
         with JournalReader(db) as reader:
@@ -332,7 +332,8 @@ def _export(args: argparse.Namespace) -> int:
 
                 casts = reader.casts(cast_id=args.cast, since=args.since)
                 samples = reader.samples(cast_id=args.cast)
-                count = netcdf.write(casts, samples, args.output)
+                sonar = netcdf.sonar_during(casts, reader.sonar_readings)
+                count = netcdf.write(casts, samples, args.output, sonar=sonar)
                 noun = f"{_plural(len(casts), 'cast')}, {_plural(count, 'sample')}"
             elif args.format == "geojson":
                 casts = reader.casts(cast_id=args.cast, since=args.since)
@@ -355,6 +356,8 @@ def _export(args: argparse.Namespace) -> int:
                         count = csv.write_fixes(
                             reader.fixes(cast_id=args.cast, since=args.since), out
                         )
+                    elif what == "sonar":
+                        count = csv.write_sonar(reader.sonar_readings(since=args.since), out)
                     else:
                         count = csv.write_events(reader.events(since=args.since), out)
                 noun = f"{_plural(count, 'row')} of {what}"

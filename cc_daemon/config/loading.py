@@ -9,10 +9,13 @@ is given, and either returns a frozen `Settings` or raises `ConfigError`.
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import os
 import re
 import tomllib
+import types
+import typing
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -117,7 +120,36 @@ def _read_toml(path: Path, problems: list[str]) -> list[_Leaf]:
     except OSError as exc:
         problems.append(f"{path}: cannot read: {exc.strerror or exc}")
         return []
+    except RecursionError:
+        # tomllib parses nested arrays and inline tables recursively: a file
+        # nested a thousand deep is not a configuration, and not a traceback.
+        problems.append(f"{path}: not valid TOML: nested too deeply to read")
+        return []
+    if _too_deep(data):
+        problems.append(
+            f"{path}: not a configuration: tables or arrays nested deeper than {_MAX_DEPTH} levels"
+        )
+        return []
     return _flatten(data, (), _Origin("file", str(path)))
+
+
+# No setting is nested deeper than a few tables; this bound keeps every walk
+# over the file's values (ours and pydantic's) far from Python's recursion limit.
+_MAX_DEPTH = 16
+
+
+def _too_deep(data: object) -> bool:
+    """Whether `data` nests tables or arrays deeper than `_MAX_DEPTH` (no recursion)."""
+    stack: list[tuple[object, int]] = [(data, 0)]
+    while stack:
+        value, depth = stack.pop()
+        if depth > _MAX_DEPTH:
+            return True
+        if isinstance(value, Mapping):
+            stack.extend((v, depth + 1) for v in value.values())
+        elif isinstance(value, list | tuple):
+            stack.extend((v, depth + 1) for v in value)
+    return False
 
 
 def _read_env(env: Mapping[str, str], problems: list[str]) -> list[_Leaf]:
@@ -143,8 +175,61 @@ def _read_env(env: Mapping[str, str], problems: list[str]) -> list[_Leaf]:
             problems.append(f"{name}: conflicts with {clash}; set only one of them")
             continue
         seen[key] = name
-        leaves.append((key, env[name], _Origin("env", name)))
+        leaves.append((key, _from_text(key, env[name]), _Origin("env", name)))
     return leaves
+
+
+# --- text from the environment, parsed by the key's type ------------------------------
+# The models are strict (`true` is not a number, "1.0" is not a float): the
+# environment only has text, so each value is parsed here, explicitly, as the
+# key's type says. Text that does not parse is passed on as text, for the
+# model to refuse with the usual one line naming the key.
+
+_TRUE = ("true", "yes", "on", "1")
+_FALSE = ("false", "no", "off", "0")
+
+
+def _kinds(annotation: object) -> set[type]:
+    """The plain types a field accepts (Annotated, unions and Literals unwrapped)."""
+    origin = typing.get_origin(annotation)
+    if origin is typing.Annotated:
+        return _kinds(typing.get_args(annotation)[0])
+    if origin is typing.Literal:
+        return {type(v) for v in typing.get_args(annotation)}
+    if origin in (typing.Union, types.UnionType):
+        return set().union(*(_kinds(a) for a in typing.get_args(annotation)))
+    return {annotation} if isinstance(annotation, type) else set()
+
+
+def _field_kinds(key: _Key) -> set[type]:
+    model: object = Settings
+    kinds: set[type] = set()
+    for part in key:
+        fields = getattr(model, "model_fields", None)
+        if not isinstance(fields, dict) or part not in fields:
+            return set()
+        annotation = fields[part].annotation
+        kinds = _kinds(annotation)
+        model = next((k for k in kinds if issubclass(k, BaseModel)), None)
+    return kinds
+
+
+def _from_text(key: _Key, text: str) -> object:
+    kinds = _field_kinds(key)
+    word = text.strip().lower()
+    if bool in kinds:
+        if word in _TRUE:
+            return True
+        if word in _FALSE:
+            return False
+        return text
+    if int in kinds or float in kinds:  # "6" stays 6 (a float key takes it), as written
+        with contextlib.suppress(ValueError):
+            return int(text)
+    if float in kinds:
+        with contextlib.suppress(ValueError):
+            return float(text)
+    return text
 
 
 def _flatten(data: Mapping[str, Any], prefix: _Key, origin: _Origin | None) -> list[_Leaf]:
@@ -152,8 +237,12 @@ def _flatten(data: Mapping[str, Any], prefix: _Key, origin: _Origin | None) -> l
     leaves: list[_Leaf] = []
     for name, value in data.items():
         key = (*prefix, str(name))
-        if isinstance(value, Mapping):
+        if isinstance(value, Mapping) and value:
             leaves.extend(_flatten(value, key, origin))
+        elif isinstance(value, Mapping) and origin is not None:
+            # An empty table is a value too: `timestamp_order = {}` must be
+            # refused as a table, not vanish into the default.
+            leaves.append((key, {}, origin))
         elif value is not None or origin is not None:
             here = origin or _Origin("flag", FLAG_NAMES.get(key, "the command line"))
             leaves.append((key, value, here))

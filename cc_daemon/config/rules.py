@@ -73,7 +73,7 @@ def _empty_is_none(value: Any) -> Any:
     return None if value == "" else value
 
 
-_SECTION = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+_SECTION = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 _Positive = Annotated[float, Field(gt=0)]
 _NonNegative = Annotated[float, Field(ge=0)]
 # Every period and duration has a floor and a ceiling a real boat could want; the

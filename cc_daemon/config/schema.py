@@ -271,7 +271,10 @@ class StoreSettings(BaseModel):
     # None lets the journal choose its default location. Where the file may be
     # (not a directory, a device, /proc...) is checked at start, not here: that
     # needs the filesystem (see cc_daemon/daemon/preflight.py).
-    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
+    # A path arrives as text from every source: lax here, so text becomes a Path.
+    path: Annotated[
+        Path | None, Field(strict=False), BeforeValidator(_empty_is_none), AfterValidator(_no_nul)
+    ] = None
     # Telemetry fixes written to the journal per second at most: the latest of
     # each interval is kept, the rest counted. Bounds the disk a babbling
     # autopilot can fill, and the memory the unwritten rows can take.
@@ -295,8 +298,12 @@ class StatusSettings(BaseModel):
     model_config = _SECTION
 
     enabled: bool = True
-    # None: $RUNTIME_DIRECTORY/status.sock under systemd, else no socket.
-    path: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = None
+    # None: by the rule of config/statuspaths.py ($RUNTIME_DIRECTORY under systemd;
+    # by hand, beside the journal or in $XDG_RUNTIME_DIR).
+    # A path arrives as text from every source: lax here, so text becomes a Path.
+    path: Annotated[
+        Path | None, Field(strict=False), BeforeValidator(_empty_is_none), AfterValidator(_no_nul)
+    ] = None
     max_clients: Annotated[int, Field(ge=1, le=1024)] = 32
     client_timeout_s: Annotated[float, Field(ge=0.1, le=60.0)] = 2.0
 
@@ -313,6 +320,10 @@ class SonarSettings(BaseModel):
     restart_after_s: _Positive = 3.0
     reconnect_initial_s: _Positive = 0.2
     reconnect_max_s: _Positive = 5.0
+    # At most this many readings a second go into the journal (the stream's
+    # nominal 4 Hz by default); the rest are counted and summarised in events.
+    # Bounded so that no stream, however fast, grows the journal past ~1 MB/min.
+    journal_rate_hz: Annotated[float, Field(ge=0.1, le=50.0)] = 4.0
 
     @model_validator(mode="after")
     def _check(self) -> SonarSettings:
@@ -336,7 +347,7 @@ class Settings(BaseModel):
     """
 
     model_config = ConfigDict(
-        extra="forbid", frozen=True, allow_inf_nan=False, validate_default=True
+        extra="forbid", frozen=True, allow_inf_nan=False, validate_default=True, strict=True
     )
 
     serial: SerialSettings = SerialSettings()

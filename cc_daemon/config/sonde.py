@@ -27,12 +27,13 @@ __all__ = [
 # Modicon numbering: holding register 40001 is protocol address 0.
 MODICON_HOLDING_BASE = 40001
 MODICON_HOLDING_LAST = 49999
+MAX_ADDRESS = 0xFFFF  # a Modbus protocol address is 16 bits
 # Function 3 returns at most 125 registers in one response (the Modbus spec's limit).
 MAX_REGISTERS_PER_READ = 125
 _BAUDRATES = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
 DataType = Literal["float32", "int32", "uint32", "int16", "uint16"]
 
-_SECTION = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+_SECTION = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 _Positive = Annotated[float, Field(gt=0)]
 
 
@@ -48,6 +49,12 @@ def _impossible(rule: str, *keys: str) -> PydanticCustomError:
         "impossible combination: " + rule.format(*keys),
         {"keys": keys, "rule": rule},
     )
+
+
+def _where(address: int) -> str:
+    if address <= MODICON_HOLDING_LAST - MODICON_HOLDING_BASE:
+        return f"register {address + MODICON_HOLDING_BASE} (protocol address {address})"
+    return f"protocol address {address}"
 
 
 def _check_baudrate(value: int) -> int:
@@ -66,16 +73,19 @@ class SondeParameter(BaseModel):
     """One value the sonde reports: where it is, how to decode it, what it means."""
 
     model_config = ConfigDict(
-        extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True
+        extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True, strict=True
     )
 
     # Column and variable name in the exports: lower case, digits and underscores.
     name: Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]*$", max_length=40)]
-    # Modicon holding-register number (40011 is protocol address 10).
+    # Where the value is, one of two ways: a Modicon holding-register number
+    # (`register = 40011` is protocol address 10), or the raw protocol address
+    # as libmodbus and the wire take it (`address = 30101`, 0 to 65535).
     # ("register" in the file; the attribute name would shadow pydantic's own.)
     modicon: Annotated[
-        int, Field(alias="register", ge=MODICON_HOLDING_BASE, le=MODICON_HOLDING_LAST)
-    ]
+        int | None, Field(alias="register", ge=MODICON_HOLDING_BASE, le=MODICON_HOLDING_LAST)
+    ] = None
+    protocol_address: Annotated[int | None, Field(alias="address", ge=0, le=MAX_ADDRESS)] = None
     type: DataType = "float32"
     # For 32-bit values: "big" = high word first (ABCD), "little" = low word first (CDAB).
     word_order: Literal["big", "little"] = "big"
@@ -84,9 +94,25 @@ class SondeParameter(BaseModel):
     # The CF standard name, where one exists for this quantity in this unit.
     standard_name: Annotated[str | None, BeforeValidator(lambda v: None if v == "" else v)] = None
 
+    @model_validator(mode="after")
+    def _one_place(self) -> SondeParameter:
+        if (self.modicon is None) == (self.protocol_address is None):
+            raise _impossible(
+                "give exactly one of {0} (Modicon number, 40001 to 49999) or {1} "
+                "(protocol address, 0 to 65535)",
+                "register",
+                "address",
+            )
+        if self.address + self.count - 1 > MAX_ADDRESS:
+            raise _impossible("{0}: the value's last register is past 65535", "address")
+        return self
+
     @property
     def address(self) -> int:
         """The protocol address (0-based) of the value's first register."""
+        if self.protocol_address is not None:
+            return self.protocol_address
+        assert self.modicon is not None
         return self.modicon - MODICON_HOLDING_BASE
 
     @property
@@ -149,7 +175,8 @@ class SondeSettings(BaseModel):
     depth_disagreement_m: _Positive = 1.0
     bottom_contact_s: Annotated[float, Field(ge=0.1, le=600.0)] = 5.0
     bottom_contact_tolerance_m: _Positive = 0.05
-    parameters: tuple[SondeParameter, ...] = DEFAULT_PARAMETERS
+    # A TOML array of tables arrives as a list; each table is checked strictly.
+    parameters: Annotated[tuple[SondeParameter, ...], Field(strict=False)] = DEFAULT_PARAMETERS
 
     @model_validator(mode="after")
     def _check(self) -> SondeSettings:
@@ -165,11 +192,12 @@ class SondeSettings(BaseModel):
                 "idle_period_s",
                 "period_s",
             )
-        if self.timeout_s * (self.retries + 1) >= self.period_s:
+        # One request must fit in a period; a retry that cannot fit is skipped
+        # by the reader (docs/sonde.md), not refused here.
+        if self.timeout_s >= self.period_s:
             raise _impossible(
-                "{0} x ({1} + 1) must be shorter than {2} (a failing read would miss samples)",
+                "{0} must be shorter than {1} (not one request would fit in a period)",
                 "timeout_s",
-                "retries",
                 "period_s",
             )
         names = [p.name for p in self.parameters]
@@ -184,8 +212,7 @@ class SondeSettings(BaseModel):
             for address in range(p.address, p.address + p.count):
                 if address in taken:
                     raise _impossible(
-                        f"{{0}}: {p.name!r} overlaps {taken[address]!r} at register "
-                        f"{address + MODICON_HOLDING_BASE}",
+                        f"{{0}}: {p.name!r} overlaps {taken[address]!r} at " + _where(address),
                         "parameters",
                     )
                 taken[address] = p.name

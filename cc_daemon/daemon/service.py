@@ -357,7 +357,11 @@ class Daemon(CastRunner):
         from cc_daemon.daemon.status_report import status_document
         from cc_daemon.daemon.status_server import serve_status
 
-        await serve_status(self.settings.status, lambda: status_document(self.status_inputs()))
+        await serve_status(
+            self.settings.status,
+            lambda: status_document(self.status_inputs()),
+            journal=self.settings.store.path,
+        )
 
     def status_inputs(self) -> StatusInputs:
         """What the status document is made of, as plain values taken now."""

@@ -17,9 +17,11 @@ cast machine), and never lets a cast wait for the sonde: the daemon reads
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import math
 import tempfile
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
@@ -38,7 +40,7 @@ from cc_daemon.drivers.sonde.depthcheck import (
 from cc_daemon.ground.clock import Clock
 from cc_daemon.store import Journal
 
-if TYPE_CHECKING:  # pymodbus is imported only when a sonde is configured
+if TYPE_CHECKING:  # the reader (and pyserial) is imported only when a sonde is configured
     from cc_daemon.drivers.sonde.reader import SondeReader, SondeReading
 
 _log = structlog.get_logger("cc_daemon.sonde")
@@ -46,6 +48,9 @@ _log = structlog.get_logger("cc_daemon.sonde")
 SURFACE = "surface"  # the phase recorded for readings taken with no cast running
 # A line out growing by more than this between two readings is "paying out".
 _PAYING_OUT_M = 0.01
+# Readings remembered for late replies: the reader owes none older than
+# `reader.LATE_LIMIT_S` (30 s), 300 readings at the shortest period.
+_ASKED_KEPT = 300
 
 
 class DaemonView(Protocol):
@@ -105,6 +110,9 @@ class SondeDuty:
         self._line_out_m = 0.0
         self._last_cast: int | None = None
         self._was_up: bool | None = None
+        # (mono_s, cast_id, phase, line out) of recent readings: a late reply is
+        # journaled with the cast, phase and line out of the time it was asked.
+        self._asked: deque[tuple[float, int | None, str, float]] = deque(maxlen=_ASKED_KEPT)
 
     # ------------------------------------------------------------ for the daemon
 
@@ -188,21 +196,12 @@ class SondeDuty:
         if depth is not None:
             self._latest_depth = (reading.mono_s, depth)
         phase = view.phase if cast_id is not None else SURFACE
-        if self._journal is not None:
-            self._journal.record_sonde_sample(
-                cast_id=cast_id,
-                phase=phase,
-                mono_s=reading.mono_s,
-                wall_s=reading.wall_s,
-                duration_s=reading.duration_s,
-                status=reading.status,
-                error=reading.error,
-                line_out_m=line_out,
-                sonde_depth_m=depth,
-                values=reading.values,
-                missing=reading.missing,
-                simulated=self._simulated,
-            )
+        self._asked.append((reading.mono_s, cast_id, phase, line_out))
+        self._record(reading, cast_id, phase, line_out)
+        for late in reading.late:
+            # Flagged `late`, with the time, cast and line out it was asked at;
+            # never fed to the depth monitor nor used for R-M.
+            self._record(late, *self._context(late.mono_s))
         self._link_events()
         paying_out = (
             cast_id is not None
@@ -214,6 +213,34 @@ class SondeDuty:
         for event in self.monitor.feed(reading.mono_s, line_out, depth, paying_out=paying_out):
             self._depth_event(event, cast_id)
         return reading
+
+    def _context(self, mono_s: float) -> tuple[int | None, str, float | None]:
+        """The cast, phase and line out of the reading during which `mono_s` fell."""
+        k = bisect.bisect_right([a[0] for a in self._asked], mono_s + 1e-9) - 1
+        if k < 0:
+            return None, SURFACE, None
+        _, cast_id, phase, line_out = self._asked[k]
+        return cast_id, phase, line_out
+
+    def _record(
+        self, reading: SondeReading, cast_id: int | None, phase: str, line_out: float | None
+    ) -> None:
+        if self._journal is None:
+            return
+        self._journal.record_sonde_sample(
+            cast_id=cast_id,
+            phase=phase,
+            mono_s=reading.mono_s,
+            wall_s=reading.wall_s,
+            duration_s=reading.duration_s,
+            status=reading.status,
+            error=reading.error,
+            line_out_m=line_out,
+            sonde_depth_m=reading.value(self.settings.sonde.depth_parameter),
+            values=reading.values,
+            missing=reading.missing,
+            simulated=self._simulated,
+        )
 
     def _link_events(self) -> None:
         up = self.reader.up

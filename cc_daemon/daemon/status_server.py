@@ -173,15 +173,22 @@ def _clear_stale(path: Path) -> None:
     raise SocketBusy(f"another process answers on {path}; not replacing it")
 
 
-async def serve_status(settings: StatusSettings, render: Callable[[], dict[str, Any]]) -> None:
+async def serve_status(
+    settings: StatusSettings, render: Callable[[], dict[str, Any]], journal: Path | None = None
+) -> None:
     """The daemon's status duty: serve `render()`'s document until cancelled; retry a
-    socket that cannot be bound."""
-    path = daemon_socket_path(settings) if settings.enabled else None
+    socket that cannot be bound. `journal` is `store.path` (`statuspaths`' rule)."""
+    path = daemon_socket_path(settings, journal=journal) if settings.enabled else None
     if path is None:
         if settings.enabled:
-            _log.info("no status socket: not under systemd and no status.path configured")
+            _log.warning("no status socket: every path the rule gives is too long")
         await asyncio.Future()  # nothing to serve, for the daemon's lifetime
         return
+    if settings.path is None and not path.parent.exists():
+        # $XDG_RUNTIME_DIR/cc-daemon: ours to make, private to the user.
+        with contextlib.suppress(OSError):
+            path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    _log.info("status socket", path=str(path))
     server = StatusServer(
         path,
         render,

@@ -19,6 +19,7 @@ from collections.abc import Iterable
 from typing import TextIO
 
 from cc_daemon.store.reader import EventRecord, FixRecord, SampleRecord, iso_utc
+from cc_daemon.store.sonar import SonarReadingRecord
 
 SAMPLE_COLUMNS = (
     "cast_id",
@@ -44,6 +45,9 @@ FIX_COLUMNS = (
     "monotonic_s",
 )
 EVENT_COLUMNS = ("time_utc", "kind", "detail", "clock_synced", "monotonic_s")
+SONAR_COLUMNS = (
+    "time_utc", "port", "distance_m", "confidence_pct", "valid", "clock_synced", "monotonic_s",
+)  # fmt: skip
 
 
 def _deg(value: float | None) -> str:
@@ -115,6 +119,31 @@ def write_events(events: Iterable[EventRecord], out: TextIO) -> int:
                 json.dumps(e.detail, sort_keys=True),
                 int(e.clock_synced),
                 f"{e.mono_s:.3f}",
+            )
+        )
+        count += 1
+    return count
+
+
+def write_sonar(readings: Iterable[SonarReadingRecord], out: TextIO) -> int:
+    """One row per journaled reading of the daemon's own Ping1D, as it arrived.
+
+    `valid` is 0 for a reading that cannot be true (confidence above 100, a
+    distance of 1 km or more): its values are written as they came, never mended.
+    """
+    writer = csv.writer(out)
+    writer.writerow(SONAR_COLUMNS)
+    count = 0
+    for r in readings:
+        writer.writerow(
+            (
+                iso_utc(r.wall_s),
+                r.port,
+                f"{r.distance_mm / 1000:.3f}",
+                r.confidence_pct,
+                int(r.valid),
+                int(r.clock_synced),
+                f"{r.mono_s:.3f}",
             )
         )
         count += 1

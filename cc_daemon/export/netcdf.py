@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -33,6 +33,7 @@ from cc_daemon import __version__
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.export.provenance import of_casts
 from cc_daemon.store.reader import CastRecord, SampleRecord
+from cc_daemon.store.sonar import SonarReadingRecord
 
 TIME_UNITS = "seconds since 1970-01-01 00:00:00 UTC"
 PHASE_FLAGS = ("soaking", "descending", "dwelling", "ascending", "aborting", "stranded")
@@ -62,7 +63,25 @@ def _flag(value: str | None, names: Sequence[str]) -> int:
     return names.index(value) if value in names else BYTE_FILL
 
 
-def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Path) -> int:
+def sonar_during(
+    casts: Sequence[CastRecord], read: Callable[..., list[SonarReadingRecord]]
+) -> list[SonarReadingRecord]:
+    """The sonar readings from the first cast's start to the last one's end."""
+    if not casts:
+        return []
+    start = min(c.start_wall_s for c in casts)
+    ends = [c.end_wall_s for c in casts]
+    until = None if any(e is None for e in ends) else max(e for e in ends if e is not None)
+    return read(since=start, until=until)
+
+
+def write(
+    casts: Sequence[CastRecord],
+    samples: Sequence[SampleRecord],
+    path: Path,
+    *,
+    sonar: Sequence[SonarReadingRecord] = (),
+) -> int:
     """Write `casts` and their `samples` as CF profiles to `path`; return the sample count.
 
     Samples of casts not in `casts` are left out (a profile needs its station).
@@ -172,7 +191,47 @@ def write(casts: Sequence[CastRecord], samples: Sequence[SampleRecord], path: Pa
             flag_meanings=_flag_meanings(PHASE_FLAGS),
             coordinates="obs_time lat lon depth",
         )[:] = [_flag(s.phase, PHASE_FLAGS) for s in kept]
+        if sonar:
+            _write_sonar(nc, sonar)
     return len(kept)
+
+
+def _write_sonar(nc: Any, readings: Sequence[SonarReadingRecord]) -> None:
+    """The daemon's own sonar readings over the casts' span, on their own dimension.
+
+    Not part of the profiles (the readings are the boat's, not the probe's): a
+    plain time series beside them, every reading as it arrived, with a flag for
+    those that cannot be true.
+    """
+    import numpy as np
+
+    nc.createDimension("sonar_obs", len(readings))
+
+    def var(name: str, kind: str, **attrs: Any) -> Any:
+        fill = attrs.pop("_FillValue", None)
+        v = nc.createVariable(name, kind, ("sonar_obs",), fill_value=fill)
+        v.setncatts(attrs)
+        return v
+
+    var(
+        "sonar_time", "f8", standard_name="time", long_name="time of the sonar reading",
+        units=TIME_UNITS, calendar="standard",
+    )[:] = [_ms(r.wall_s) for r in readings]  # fmt: skip
+    var(
+        "sonar_distance", "f8", long_name="distance to the bottom from the companion"
+        " computer's own sonar, as it arrived", units="m", positive="down",
+        coordinates="sonar_time",
+    )[:] = [r.distance_mm / 1000 for r in readings]  # fmt: skip
+    var(
+        "sonar_reading_confidence", "i2", long_name="sonar confidence, as it arrived",
+        units="percent", coordinates="sonar_time",
+    )[:] = [r.confidence_pct for r in readings]  # fmt: skip
+    var(
+        "sonar_valid", "i1", long_name="sonar reading can be true",
+        flag_values=np.array([0, 1], dtype="i1"), flag_meanings="invalid valid",
+        comment="invalid: confidence above 100, or a distance of 1 km or more",
+        coordinates="sonar_time",
+    )[:] = [int(r.valid) for r in readings]  # fmt: skip
 
 
 def profile_file(

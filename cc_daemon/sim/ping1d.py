@@ -5,10 +5,18 @@ This module owns the device side of the sonar link:
   the depth plus noise, a confidence that drops in shallow water (under
   `SHALLOW_M`), on steep bottoms and under way, and dropouts under way
   (propeller wash: distance 0, confidence 0, as a real Ping reports a lost echo).
-- `Ping1DDevice` (sans-IO): answers general_request for protocol_version (5),
-  device_id (1201), speed_of_sound (1203) and distance_simple (1211), NACKs any
-  other request, and streams distance_simple every `interval_s` between
-  continuous_start (1400) and continuous_stop (1401).
+- `Ping1DDevice` (sans-IO): answers every message a Ping1D answers, in brping's
+  table (`ping.PING1D_TABLE`): a request (general_request, or the legacy form:
+  the id with no payload) for device_information (4), protocol_version (5) or
+  any Ping1D value (1200-1215: firmware_version, device_id, voltage_5,
+  speed_of_sound, range, mode_auto, ping_interval, gain_setting,
+  transmit_duration, general_info, distance_simple, distance, temperatures,
+  ping_enable; 1300 profile; 1301 oss_profile_configuration) is answered from
+  its settings and the sounder; every set command (100, 1000-1007) is kept and
+  acknowledged (ack, 1), so brping reads back what it set; goto_bootloader gets
+  no answer (a real Ping leaves the protocol); anything else is NACKed. It
+  streams distance_simple every `interval_s` between continuous_start (1400)
+  and continuous_stop (1401).
 - `Ping1DServer`: the device on a file descriptor (a pty's master end) or a
   serial port (`cc-daemon simulate-sonar --port PATH`).
 
@@ -42,6 +50,36 @@ from cc_daemon.sim.mission import Mission, Point
 
 STREAM_INTERVAL_S = 0.25  # the manual: distance_simple every 250 ms
 SPEED_OF_SOUND_MM_S = 1_500_000  # fresh water, as a Ping1D ships
+ACK = 1
+GOTO_BOOTLOADER = 1100
+# The set commands and the value each sets (the same field names as the gets).
+_SETS = {100, 1000, 1001, 1002, 1003, 1004, 1005, 1006, 1007}
+# What the simulated Ping reports before anything is set: a Ping1D (device type
+# 1) at 5 V, auto mode, pinging every 100 ms, over 0-30 m.
+_DEFAULTS: dict[str, int] = {
+    "device_type": 1,
+    "device_revision": 1,
+    "device_model": 1,
+    "firmware_version_major": 3,
+    "firmware_version_minor": 28,
+    "firmware_version_patch": 0,
+    "reserved": 0,
+    "voltage_5": 5000,
+    "speed_of_sound": SPEED_OF_SOUND_MM_S,
+    "scan_start": 0,
+    "scan_length": 30_000,
+    "mode_auto": 1,
+    "ping_interval": 100,
+    "gain_setting": 3,
+    "transmit_duration": 100,
+    "processor_temperature": 3500,
+    "pcb_temperature": 3000,
+    "ping_enabled": 1,
+    "number_of_points": 200,
+    "normalization_enabled": 1,
+    "enhance_enabled": 0,
+}
+_ECHO_MESSAGES = (ping.DISTANCE_SIMPLE, 1212, 1300)  # those carrying a fresh echo
 PROTOCOL_VERSION = (1, 0, 0)
 SHALLOW_M = 1.5  # below this the echo crowds the transmit pulse
 _SHALLOW_PENALTY_PER_M = 12.0  # 0.6 m of water costs about 11 %
@@ -119,6 +157,8 @@ class Ping1DDevice:
         self._stream = PingStream()
         self.streaming = False
         self._next_at = math.inf
+        self.settings = dict(_DEFAULTS)
+        self.ping_number = 0
         self.requests: list[int] = []  # every request's message id (general requests: the asked id)
         self.sent_readings = 0
 
@@ -157,8 +197,20 @@ class Ping1DDevice:
                     self._next_at = math.inf
             elif isinstance(event, OtherMessage):
                 self.requests.append(event.message_id)
-                out += self._nack(event.message_id, "not simulated", to)
+                out += self._other(event, to)
         return bytes(out)
+
+    def _other(self, event: OtherMessage, to: int) -> bytes:
+        mid = event.message_id
+        if mid in _SETS:
+            for name, value in event.fields:
+                self.settings[name] = value
+            if "device_id" in dict(event.fields):
+                self.device_id = event.field("device_id")
+            return ping.encode(ACK, src=self.device_id, dst=to, acked_id=mid)
+        if mid in (ACK, ping.NACK, GOTO_BOOTLOADER) or mid == 3:  # 3: ascii_text
+            return b""  # nothing a Ping answers (the bootloader leaves the protocol)
+        return self._nack(mid, "not a request", to)
 
     def poll(self, now: float) -> bytes:
         """The streamed reading due at `now`, if any (never a burst of catch-up)."""
@@ -184,10 +236,29 @@ class Ping1DDevice:
         if requested == ping.DEVICE_ID:
             return ping.encode(requested, src=me, dst=to, device_id=me)
         if requested == ping.SPEED_OF_SOUND:
-            return ping.encode(requested, src=me, dst=to, speed_of_sound=SPEED_OF_SOUND_MM_S)
+            sos = self.settings["speed_of_sound"]
+            return ping.encode(requested, src=me, dst=to, speed_of_sound=sos)
         if requested == ping.DISTANCE_SIMPLE:
             return self._distance(to)
-        return self._nack(requested, "not simulated", to)
+        spec = ping.PING1D_TABLE.get(requested)
+        if spec is None or requested in _SETS or not 4 <= requested < 1400 or requested == 6:
+            return self._nack(requested, "not a value this device reports", to)
+        if requested == GOTO_BOOTLOADER:
+            return b""
+        values: dict[str, int | bytes] = {"device_id": me, **self.settings}
+        if requested in _ECHO_MESSAGES:
+            echo = self.sounder()
+            self.ping_number += 1
+            values |= {
+                "distance": echo.distance_mm,
+                "confidence": echo.confidence_pct,
+                "ping_number": self.ping_number,
+            }
+        if requested == 1300:  # a flat profile: the points, no echo shape simulated
+            points = self.settings["number_of_points"]
+            values |= {"profile_data_length": points, "profile_data": bytes(points)}
+        fields = {n: values[n] for n in spec["field_names"] if n in values}
+        return ping.encode(requested, src=me, dst=to, **fields)
 
     def _distance(self, to: int) -> bytes:
         echo = self.sounder()

@@ -74,8 +74,12 @@ class SimulatedSonde:
         model: Readings | None = None,
         fault_rate: float = 0.0,
         seed: int = 0,
+        only_mapped: bool = False,
     ) -> None:
+        """`only_mapped`: registers between the parameters are not mapped, so a read
+        across them gets exception 2 (illegal data address), as some sondes do."""
         self.path = Path(path)
+        self.only_mapped = only_mapped
         self.line_out = line_out
         self.parameters = tuple(parameters)
         self.slave_id = slave_id
@@ -165,7 +169,7 @@ class SimulatedSonde:
     async def _serve(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
-        blocks = plan_blocks(self.parameters)
+        blocks = plan_blocks(self.parameters, gaps=not self.only_mapped)
         device = SimDevice(
             self.slave_id,
             simdata=[

@@ -29,7 +29,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from cc_daemon.store import schema, sonde
+from cc_daemon.store import schema, sonar, sonde
 from cc_daemon.store.schema import StoreError
 from cc_daemon.store.surveys import ALL, LATEST, SurveyRecord, list_surveys
 
@@ -413,6 +413,12 @@ class JournalReader:
             chosen = found[0]
         self.survey = chosen.id
         return chosen
+
+    def sonar_readings(
+        self, *, since: float | None = None, until: float | None = None
+    ) -> list[sonar.SonarReadingRecord]:
+        """The daemon's own sonar readings in time order (`store.sonar`)."""
+        return sonar.read_readings(self._conn, since=since, until=until)
 
     def _cast_end(self, cast: CastRecord) -> tuple[float, float]:
         """When a cast's data ends: its end row, else its last sample, else its start."""

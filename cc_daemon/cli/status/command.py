@@ -11,7 +11,7 @@ from pathlib import Path
 from cc_daemon.cli.status.client import StatusUnavailable, read_status
 from cc_daemon.cli.status.view import render_text, watch
 from cc_daemon.config import StatusSettings
-from cc_daemon.config.statuspaths import client_socket_path
+from cc_daemon.config.statuspaths import client_socket_paths
 from cc_daemon.core.errors import ConfigError
 
 
@@ -33,23 +33,29 @@ def add_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
     p.set_defaults(handler=run_status)
 
 
-def socket_from_args(socket_path: Path | None, config: Path | None) -> Path:
-    """--socket, else the configuration's status.path, else the service's socket."""
+def socket_candidates(socket_path: Path | None, config: Path | None) -> list[Path]:
+    """--socket alone, else the configuration's status.path alone, else where a daemon
+    started by hand with the same configuration binds, then the service's socket."""
     if socket_path is not None:
-        return socket_path
+        return [socket_path]
     from cc_daemon.config import load_settings
 
+    journal: Path | None = None
     try:
-        settings: StatusSettings | None = load_settings(config).status
+        loaded = load_settings(config)
+        settings: StatusSettings | None = loaded.status
+        journal = loaded.store.path
     except ConfigError:
         if config is not None:
             raise
         settings = None  # e.g. /etc/cc-daemon unreadable to this user: use the default
-    return client_socket_path(settings)
+    # The same rule the daemon bound by (`statuspaths`).
+    return client_socket_paths(settings, journal=journal)
 
 
 def run_status(args: argparse.Namespace) -> int:
-    path = socket_from_args(args.socket, args.status_config)
+    tried = socket_candidates(args.socket, args.status_config)
+    path = next((p for p in tried if p.exists()), tried[-1])
     if args.watch:
         return watch(
             lambda: read_status(path), interval_s=max(args.interval, 0.1), updates=args.updates
@@ -57,7 +63,9 @@ def run_status(args: argparse.Namespace) -> int:
     try:
         document = read_status(path)
     except StatusUnavailable as exc:
-        print(f"cc-daemon status: {exc}", file=sys.stderr)
+        others = [str(p) for p in tried if p != path]
+        also = f" (nor at {', '.join(others)})" if others else ""
+        print(f"cc-daemon status: {exc}{also}", file=sys.stderr)
         return 1
     if args.json:
         print(json.dumps(document, sort_keys=True))

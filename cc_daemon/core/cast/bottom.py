@@ -27,6 +27,10 @@ NO_ECHO_MM = 0  # what a Ping reports with no echo (and an autopilot with no son
 # No echosounder on a survey boat reads a bottom a kilometre down; a larger
 # distance is a sentinel or garbage: 4294967295 (all ones in the frame's u32
 # field) is what a driver that never had a reading leaves there.
+# A reading is stored as it came and flagged invalid when it cannot be one: a
+# confidence over 100 %, a distance of a kilometre or more. (0 mm with 0 % is a
+# true report: no echo; it is valid, but no bottom to plan on.)
+NO_DISTANCE_MM = 0xFFFFFFFF  # what a Ping sends for "no distance"
 MAX_SOUNDING_MM = 1_000_000
 MAX_CONFIDENCE_PCT = 100
 
@@ -47,6 +51,11 @@ def distrust(distance_mm: int, confidence_pct: int, *, min_confidence: int) -> s
     return None
 
 
+def sounding_valid(distance_mm: int, confidence_pct: int) -> bool:
+    """Whether a (distance, confidence) pair can be a true reading at all."""
+    return 0 <= confidence_pct <= MAX_CONFIDENCE_PCT and 0 <= distance_mm < MAX_SOUNDING_MM
+
+
 @dataclass(frozen=True, slots=True)
 class Sounding:
     """A bottom reading from one source, with when it arrived (the caller's clock)."""
@@ -55,6 +64,10 @@ class Sounding:
     distance_mm: int
     confidence_pct: int
     at: float
+
+    @property
+    def valid(self) -> bool:
+        return sounding_valid(self.distance_mm, self.confidence_pct)
 
 
 def freshest_bottom(

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from cc_daemon.core.cast.bottom import sounding_valid
 from cc_daemon.drivers.sonar import ping
 from cc_daemon.drivers.sonar.ping import (
     BadFrame,
@@ -43,6 +44,11 @@ class SonarReading:
     @property
     def distance_m(self) -> float:
         return self.distance_mm / 1000.0
+
+    @property
+    def valid(self) -> bool:
+        """False for a reading that cannot be true (confidence > 100, distance >= 1 km)."""
+        return sounding_valid(self.distance_mm, self.confidence_pct)
 
 
 NO_READING = SonarReading(0, 0, float("-inf"))
@@ -114,7 +120,8 @@ class SonarClient:
         for envelope in self._stream.feed(data):
             event = envelope.event
             if isinstance(event, DistanceSimple):
-                reading = SonarReading(event.distance_mm, min(event.confidence_pct, 100), now)
+                # As it arrived: an impossible value is flagged (`valid`), never mended.
+                reading = SonarReading(event.distance_mm, event.confidence_pct, now)
                 self.latest = reading
                 self._heard_at = now
                 self.readings += 1

@@ -135,9 +135,13 @@ class Nack:
 
 @dataclass(frozen=True, slots=True)
 class OtherMessage:
-    """A well-formed frame whose meaning cc-daemon does not use."""
+    """A well-formed frame whose meaning the reader does not use; its integer fields."""
 
     message_id: int
+    fields: tuple[tuple[str, int], ...] = ()
+
+    def field(self, name: str, default: int = 0) -> int:
+        return dict(self.fields).get(name, default)
 
 
 @dataclass(frozen=True, slots=True)
@@ -210,7 +214,14 @@ def _event(message: Any) -> PingEvent:
     if mid == NACK:
         text = bytes(getattr(message, "nack_message", b"")).rstrip(b"\0").decode("ascii", "replace")
         return Nack(int(message.nacked_id), text)
-    return OtherMessage(mid)
+    spec = PING1D_TABLE.get(mid)
+    names = spec["field_names"] if spec is not None else ()
+    values = tuple(
+        (name, int(value))
+        for name in names
+        if isinstance(value := getattr(message, name, None), int)
+    )
+    return OtherMessage(mid, values)
 
 
 class PingStream:

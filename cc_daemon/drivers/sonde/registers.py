@@ -47,21 +47,31 @@ class Block:
     count: int
     parameters: tuple[ParameterLike, ...]
 
+    @property
+    def has_gaps(self) -> bool:
+        return sum(p.count for p in self.parameters) < self.count
+
 
 def plan_blocks(
-    parameters: Sequence[ParameterLike], max_registers: int = MAX_REGISTERS_PER_READ
+    parameters: Sequence[ParameterLike],
+    max_registers: int = MAX_REGISTERS_PER_READ,
+    *,
+    gaps: bool = True,
 ) -> list[Block]:
     """The fewest contiguous reads covering every parameter, in address order.
 
     Registers between two parameters are read and ignored: one request more
     costs far more at 9600 baud (a turnaround plus 8 + 5 bytes) than a few
-    registers of padding.
+    registers of padding. With `gaps=False` a block covers only the
+    parameters' own registers, for a sonde that refuses unmapped ones
+    (exception 2, illegal data address).
     """
     blocks: list[Block] = []
     start = end = 0
     members: list[ParameterLike] = []
     for p in sorted(parameters, key=lambda p: p.address):
-        if members and p.address + p.count - start <= max_registers:
+        joins = gaps or p.address <= end
+        if members and joins and p.address + p.count - start <= max_registers:
             members.append(p)
             end = max(end, p.address + p.count)
             continue
