@@ -241,3 +241,13 @@ async def test_winch_home_with_the_daemon_running_hauls_a_stranded_probe_in(
             await port.close()
     kinds = [kind for kind, _ in _events(tmp_path)]
     assert kinds.count("operator_haul_in") == 2 and "stranded_cleared" in kinds
+
+
+
+def test_the_control_socket_is_named_after_its_status_socket() -> None:
+    from cc_daemon.daemon.control_server import control_path
+
+    assert control_path(Path("/run/cc-daemon/status.sock")) == Path("/run/cc-daemon/control.sock")
+    # Two daemons started by hand on two journals in one directory: two sockets.
+    assert control_path(Path("/data/a.db.status.sock")) == Path("/data/a.db.control.sock")
+    assert control_path(Path("/data/custom.sock")) == Path("/data/custom.sock.control.sock")

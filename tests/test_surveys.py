@@ -141,3 +141,6 @@ def test_two_simulations_in_one_directory_each_judge_only_their_own(tmp_path: Pa
     with JournalReader(tmp_path / "shared.db") as reader:
         surveys = reader.surveys()
     assert len(surveys) == 2 and all(s.stations == 1 for s in surveys)
+    # Each daemon had its own status and control sockets: no task fought over one.
+    log = (tmp_path / "shared.log").read_text()
+    assert "crashed" not in log and "socket unavailable" not in log

@@ -37,12 +37,13 @@ def run(args: argparse.Namespace) -> int:
 
     path = args.socket
     if path is None:
-        settings = None
+        status, journal = None, None
         if args.config is not None:
             from cc_daemon.config import load_settings
 
-            settings = load_settings(args.config, {}).status
-        path = control_path(client_socket_path(settings))
+            settings = load_settings(args.config, {})
+            status, journal = settings.status, settings.store.path
+        path = control_path(client_socket_path(status, journal=journal))
     try:
         answer = ask_daemon(path, f"release {' '.join(args.reason.split())}")
     except OSError as exc:

@@ -73,7 +73,7 @@ def _home_through_daemon(settings: Any) -> int | None:
     from cc_daemon.config.statuspaths import client_socket_path
     from cc_daemon.daemon.control_server import control_path
 
-    path = control_path(client_socket_path(settings.status))
+    path = control_path(client_socket_path(settings.status, journal=settings.store.path))
     try:
         answer = ask_daemon(path, "home")
     except OSError:

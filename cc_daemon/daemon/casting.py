@@ -348,7 +348,12 @@ class CastRunner:
     async def _serve_control(self) -> None:
         from cc_daemon.daemon.control_server import serve_control
 
-        await serve_control(self.settings.status, self.release_station, self.haul_home)
+        await serve_control(
+            self.settings.status,
+            self.release_station,
+            self.haul_home,
+            journal=self.settings.store.path,
+        )
 
     def haul_home(self, peer: object, reason: str) -> tuple[bool, str]:
         """`cc-daemon winch home` with the daemon running: haul a stranded probe in.

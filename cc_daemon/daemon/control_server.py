@@ -44,6 +44,7 @@ if TYPE_CHECKING:
 _log = structlog.get_logger("cc_daemon.control")
 
 CONTROL_NAME = "control.sock"
+RETRY_BIND_S = 30.0
 MAX_REQUEST = 512  # "release " and a reason: a line, never more
 REQUEST_TIMEOUT_S = 2.0
 _PEERCRED = struct.Struct("3i")
@@ -60,7 +61,13 @@ Release = Callable[[Peer, str], tuple[bool, str]]
 
 
 def control_path(status_path: Path) -> Path:
-    return status_path.with_name(CONTROL_NAME)
+    """The control socket beside a status socket, named after it: `status.sock` →
+    `control.sock`, `<journal>.status.sock` → `<journal>.control.sock` (two daemons
+    on two journals in one directory never share one)."""
+    name = status_path.name
+    if name.endswith("status.sock"):
+        return status_path.with_name(name[: -len("status.sock")] + CONTROL_NAME)
+    return status_path.with_name(f"{name}.{CONTROL_NAME}")
 
 
 def _peer(writer: asyncio.StreamWriter) -> Peer | None:
@@ -142,16 +149,32 @@ def _group_name(gid: int) -> str:
 
 
 async def serve_control(
-    settings: StatusSettings, release: Release, home: Release | None = None
+    settings: StatusSettings,
+    release: Release,
+    home: Release | None = None,
+    *,
+    journal: Path | None = None,
 ) -> None:
-    """The daemon's control duty, beside the status socket (none without one)."""
-    status_path = daemon_socket_path(settings) if settings.enabled else None
+    """The daemon's control duty, beside the status socket (none without one); a
+    socket that cannot be bound (another daemon's) is said and retried, never a crash."""
+    status_path = daemon_socket_path(settings, journal=journal) if settings.enabled else None
     if status_path is None:
         await asyncio.Future()
         return
     server = ControlServer(control_path(status_path), release, home)
     try:
-        await server.start()
+        while True:
+            try:
+                await server.start()
+                break
+            except OSError as exc:
+                _log.error(
+                    "control socket unavailable; retrying",
+                    path=str(server.path),
+                    error=str(exc),
+                    retry_s=RETRY_BIND_S,
+                )
+                await asyncio.sleep(RETRY_BIND_S)
         await asyncio.Future()
     finally:
         await server.close()

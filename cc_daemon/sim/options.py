@@ -145,6 +145,10 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
         sim["fail_home"] = True
     base["cast"].update(pace.cast)
     base["store"]["path"] = str(options.db_path.absolute())
+    if base["status"]["path"] is None:
+        # The run's own status and control sockets, beside its pty: two simulations
+        # writing one journal each answer on their own (not `<journal>.status.sock`).
+        base["status"]["path"] = str(port.parent / "status.sock")
     if base["sonde"]["backend"] == "none":  # a simulated survey measures with a simulated sonde
         base["sonde"]["backend"] = "sim"
     return Settings.model_validate(base)
