@@ -243,7 +243,6 @@ async def test_winch_home_with_the_daemon_running_hauls_a_stranded_probe_in(
     assert kinds.count("operator_haul_in") == 2 and "stranded_cleared" in kinds
 
 
-
 def test_the_control_socket_is_named_after_its_status_socket() -> None:
     from cc_daemon.daemon.control_server import control_path
 
