@@ -52,7 +52,13 @@ from cc_daemon.core.protocol import (
 )
 from cc_daemon.core.status import DaemonStatus, Fix
 from cc_daemon.core.winch.status import Winch, WinchStatus
-from cc_daemon.daemon.casting import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, ActiveCast, CastRunner
+from cc_daemon.daemon.casting import (
+    EXIT_OK,
+    EXIT_PROBE_MAY_BE_DOWN,
+    EXIT_ROWS_LOST,
+    ActiveCast,
+    CastRunner,
+)
 from cc_daemon.daemon.line_watch import TICK_S, LineWatch
 from cc_daemon.daemon.preflight import make_journal
 from cc_daemon.daemon.simgate import simulation_warning
@@ -323,6 +329,11 @@ class Daemon(CastRunner):
                     )
                 journal.record_event("daemon_stopped", exit_code=self._exit_code)
                 journal.close()
+                lost = journal.health().dropped_rows
+                if lost:
+                    _log.error("the journal lost rows during this run", dropped_rows=lost)
+                    if self._exit_code == EXIT_OK:
+                        self._exit_code = EXIT_ROWS_LOST
         _log.info("cc-daemon stopped", exit_code=self._exit_code)
         try:
             flush_rate_limited(everything=True)

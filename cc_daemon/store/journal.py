@@ -23,7 +23,6 @@ import os
 import sqlite3
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +32,7 @@ from cc_daemon.ground.clocksync import clock_sync
 from cc_daemon.store import sonde
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
+from cc_daemon.store.health import JournalHealth
 from cc_daemon.store.rows import (
     CAST,
     END,
@@ -48,6 +48,7 @@ from cc_daemon.store.rows import (
     SPILL_LAYOUT,
     UPDATE_END,
 )
+from cc_daemon.store.spill import DEFAULT_FILE_MODE
 from cc_daemon.store.thinning import FixThinner, buffer_rows
 from cc_daemon.store.writer import BufferedWriter
 
@@ -56,20 +57,6 @@ OUTCOMES = frozenset({"completed", "skipped-shallow", "aborted", "unfinished"})
 BOOT_ID = Path("/proc/sys/kernel/random/boot_id")
 SYNC_CHECK_INTERVAL_S = 1.0
 UNFINISHED_REASON = "no end recorded: the daemon stopped during the cast (crash, kill or power cut)"
-
-
-@dataclass(frozen=True, slots=True)
-class JournalHealth:
-    """A snapshot of the journal's state, for the daemon's status and logs."""
-
-    path: Path  # the file in use: a fresh one if the configured one could never be used
-    writable: bool  # the file is open and the last write succeeded
-    pending_rows: int  # recorded but not yet committed
-    rows_written: int
-    write_errors: int  # failed attempts to open or write the file
-    dropped_rows: int  # given up for good: buffer overflow or a row SQLite refused
-    last_error: str | None
-    writer_alive: bool = False  # the writer thread is running (restarted if it ever stops)
 
 
 def _kernel_says_synced() -> bool:
@@ -122,6 +109,8 @@ class Journal(BufferedWriter):
         winch_backend: str | None = None,
         simulated: bool | None = None,
         telemetry_rate_hz: float | None = None,
+        spill_dir: Path | None = None,
+        file_mode: int = DEFAULT_FILE_MODE,
     ) -> None:
         """`on_connect` is called with every new connection before use (tests use it
         to set `PRAGMA max_page_count`, which makes SQLite report a full disk).
@@ -139,7 +128,12 @@ class Journal(BufferedWriter):
                 100_000 if telemetry_rate_hz is None else buffer_rows(telemetry_rate_hz)
             )
         super().__init__(
-            path, wall=wall, max_buffered_rows=max_buffered_rows, on_connect=on_connect
+            path,
+            wall=wall,
+            max_buffered_rows=max_buffered_rows,
+            on_connect=on_connect,
+            spill_dir=spill_dir,
+            file_mode=file_mode,
         )
         self._monotonic = monotonic
         # The same answer `cc-daemon status` gives: the kernel's (adjtimex), which
@@ -164,19 +158,30 @@ class Journal(BufferedWriter):
 
     def health(self) -> JournalHealth:
         with self._lock:  # pending and written from the same instant
-            pending = self._pending_locked()
+            spilled = self._spilled.rows
+            pending = self._pending_locked() + spilled
             written = self._rows_written
         thread = self._thread
+        stalled = self._stalled_s()
+        last_error = self._last_error
+        if stalled is not None:  # a frozen filesystem: the write has not come back
+            last_error = f"journal write not done after {stalled:.0f} s (filesystem frozen?)"
         return JournalHealth(
             path=self._active,
-            writable=self._conn is not None and not self._failing,
+            writable=self._conn is not None and not self._failing and stalled is None,
             pending_rows=pending,
             rows_written=written,
             write_errors=self._write_errors,
             dropped_rows=self._dropped_rows,
-            last_error=self._last_error,
+            last_error=last_error,
             writer_alive=thread is not None and thread.is_alive(),
+            spilled_rows=spilled,
+            spill_files=tuple(self._spilled.files),
         )
+
+    def _episode_ended(self, **detail: object) -> None:
+        """Journal the episode of failure that just ended (a full disk, say)."""
+        self.record_event("journal_unwritable", **detail)
 
     # ------------------------------------------------- loop-thread recording
     # Each method catches every exception: the journal's contract is that it
@@ -579,6 +584,7 @@ class Journal(BufferedWriter):
         try:
             table, columns = SPILL_LAYOUT[row[0]]
             record: dict[str, object] = {"table": table, "session_id": self._session_id}
+            record["row"] = list(row)  # as recorded: what this run replays
             record.update(zip(columns, row[1:], strict=False))
             if row[0] in (SAMPLE, END) or (row[0] == sonde.SONDE and row[1] is not None):
                 record["cast_id"] = self._stored_id(row[1], {})
