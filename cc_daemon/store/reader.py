@@ -8,11 +8,15 @@ work at once) and never marks a running cast `unfinished` (only the daemon's
 `Journal.open()` may decide that a cast was left by a crash). A file from an
 older cc-daemon is migrated in a private in-memory copy, never in place.
 
-A WAL reader needs the `-shm` file beside the journal, which it must create if
-the daemon is not running; a user who may read the file but not write its
-directory (the daemon's state directory, say) cannot. Then the reader opens
-the file `immutable` if it has no write-ahead log (the daemon stopped cleanly),
-or else reads a private copy of the file and its log in a temporary directory.
+A journal with no write-ahead log beside it is one nobody has open (SQLite
+removes `-wal` and `-shm` with the last connection): the reader opens it
+`immutable`, which reads the file alone and creates nothing beside it, so a
+data command leaves no `-wal`/`-shm` behind and needs no write access to the
+directory. That is safe because a daemon that starts meanwhile writes to its
+new log, not to the file, until a checkpoint (4 MB of log, or its close). With
+a log present (the daemon running, or killed) the reader opens it `mode=ro`,
+using the `-shm` that is there; if it cannot (a directory it may not write),
+it reads a private copy of the file and its log in a temporary directory.
 
 All the reads of one `JournalReader` see one snapshot of the file, so a cast
 and its samples agree even while the daemon is writing.
@@ -188,7 +192,12 @@ class JournalReader:
         uri = self.path.resolve().as_uri()
         try:
             try:
-                conn = self._snapshot(f"{uri}?mode=ro")
+                if not os.path.lexists(f"{self.path}-wal"):
+                    # Nobody has it open (SQLite removes the log with its last
+                    # connection): read the file alone, making nothing beside it.
+                    conn = self._snapshot(f"{uri}?immutable=1")
+                else:
+                    conn = self._snapshot(f"{uri}?mode=ro")
             except sqlite3.OperationalError as exc:
                 code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
                 if code not in (_SQLITE_READONLY, _SQLITE_CANTOPEN):
