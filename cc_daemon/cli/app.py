@@ -158,6 +158,7 @@ def flag_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 def build_parser() -> argparse.ArgumentParser:
     from cc_daemon.cli import data as datacli
+    from cc_daemon.cli import recover as recover_cli
     from cc_daemon.cli import sonde as sondecli
     from cc_daemon.cli import winch as winchcli
     from cc_daemon.cli.doctor import command as doctor_cli
@@ -182,6 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_decode(sub)
     datacli.add_commands(sub)
+    recover_cli.add_command(sub)
     simulator.add_commands(sub)
     status_cli.add_commands(sub)
     doctor_cli.add_commands(sub)
