@@ -32,10 +32,13 @@ import tempfile
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, NamedTuple, TypeVar
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
-from cc_daemon.store import damage, schema, sonde
+from cc_daemon.store import schema, sonde
 from cc_daemon.store.schema import StoreError
+
+if TYPE_CHECKING:
+    from cc_daemon.store.damage import Salvage
 
 R = TypeVar("R")
 
@@ -266,7 +269,7 @@ class JournalReader:
         self._bad_rows: dict[str, int] = {}
         self._bad_json: dict[str, int] = {}
         conn.text_factory = self._decode
-        self.salvage: damage.Salvage | None = None  # set when read from a salvaged copy
+        self.salvage: Salvage | None = None  # set when read from a salvaged copy
         try:
             self.problems = self._judge()
         except BaseException:
@@ -284,6 +287,8 @@ class JournalReader:
 
     def _judge(self) -> list[str]:
         """What is wrong with the file; a damaged one is read from a salvaged copy."""
+        from cc_daemon.store import damage  # the daemon imports this module, never needs that
+
         problems: list[str] = []
         wal = damage.wal_damage(self.path)
         if wal is not None:
@@ -305,6 +310,8 @@ class JournalReader:
         """Read what `damage.salvage` can save of the file, from a private copy."""
         if self._private is None:
             self._private = tempfile.TemporaryDirectory(prefix="cc-daemon-read-")
+        from cc_daemon.store import damage
+
         copy = Path(self._private.name) / f"salvaged-{self.path.name}"
         try:
             salvage = damage.salvage(self.path, copy)
