@@ -9,6 +9,7 @@ from typing import Any
 import pytest
 
 from cc_daemon.ground.logsetup import reset_logging
+from cc_daemon.store import spill
 from tests.daemonkit import DaemonProcess
 
 
@@ -17,6 +18,17 @@ def _fresh_logging() -> Iterator[None]:
     """Commands run in-process configure structlog globally; undo it after each test."""
     yield
     reset_logging()
+
+
+@pytest.fixture(autouse=True)
+def _no_system_runtime_dir(
+    tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The journal's last spill directories (/run/cc-daemon, $XDG_RUNTIME_DIR) are
+    not the test's: a test that wants one sets $RUNTIME_DIRECTORY."""
+    monkeypatch.setattr(spill, "SYSTEM_RUNTIME_DIR", tmp_path_factory.mktemp("run") / "no" / "x")
+    monkeypatch.delenv("XDG_RUNTIME_DIR", raising=False)
+    monkeypatch.delenv("RUNTIME_DIRECTORY", raising=False)
 
 
 @pytest.fixture

@@ -15,6 +15,7 @@ gives, without mounting a tiny filesystem.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import sqlite3
@@ -152,7 +153,9 @@ def test_a_read_only_directory_is_written_once_it_is_writable_again(tmp_path: Pa
         finally:
             journal.close()
     assert query(db, "SELECT count(*) FROM samples") == [(5,)]
-    assert query(db, "SELECT kind FROM events") == [("port_lost",)]
+    # The episode is journaled once the file takes rows again (issue 20).
+    kinds = [kind for (kind,) in query(db, "SELECT kind FROM events")]
+    assert kinds == ["port_lost", "journal_unwritable"]
 
 
 def test_a_full_store_keeps_rows_in_memory_until_there_is_room(tmp_path: Path) -> None:
@@ -174,9 +177,18 @@ def test_a_full_store_keeps_rows_in_memory_until_there_is_room(tmp_path: Path) -
         assert query(db, "SELECT outcome FROM casts") == [("completed",)]
         disk.full = False  # room again: the next reconnect sets no cap
         wait_for(lambda: journal.health().pending_rows == 0)
+        health = journal.health()
+        assert health.writable
+        assert health.last_error is None  # the status says what is true now
     finally:
         journal.close()
-    assert journal.health().rows_written == 3009
+    # 3009 rows, and the episode of the full disk as an event once there was room.
+    assert journal.health().rows_written == 3010
+    ((detail,),) = query(db, "SELECT detail_json FROM events WHERE kind = 'journal_unwritable'")
+    episode = json.loads(detail)
+    assert "database or disk is full" in episode["error"]
+    assert episode["dropped_rows"] == 0
+    assert episode["seconds"] > 0
     assert query(db, "SELECT count(*) FROM fixes") == [(3001,)]
     assert query(db, "SELECT count(*) FROM samples WHERE cast_id = 1") == [(5,)]
     assert cast_id == 1

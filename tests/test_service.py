@@ -18,12 +18,14 @@ from cc_daemon.config import Settings
 from cc_daemon.core.cast.machine import CastMachine
 from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished, ProbePositionRequest
 from cc_daemon.core.winch.physics import LinePhysics
+from cc_daemon.daemon.casting import EXIT_ROWS_LOST
 from cc_daemon.daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, Daemon
 from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.drivers.winch.simulated import SimulatedWinch
 from cc_daemon.ground.clock import SystemClock
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
+from cc_daemon.store import Journal
 from tests.daemonkit import FAST_CAST, merge, station
 
 
@@ -313,3 +315,27 @@ async def test_r_f_always_carries_depth_0(tmp_path: Path) -> None:
         assert await asyncio.wait_for(task, 5) == EXIT_OK
         await port.close()
     assert len(finishes) == 3 and all(f.depth_mm == 0 for f in finishes)
+
+
+async def test_rows_the_journal_could_put_nowhere_make_a_non_zero_exit(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The journal's directory is gone and no spill directory works (no state or
+    # runtime directory here): rows at close are lost, and the exit status says so.
+    pty = PtyPair(tmp_path / "tty")
+    db = tmp_path / "gone" / "j.db"
+    settings = Settings.model_validate(
+        merge(FAST_CAST, {"serial": {"port": str(pty.path)}, "store": {"path": str(db)}})
+    )
+    journal = Journal(db)
+    journal.open()
+    daemon = Daemon(settings, journal=journal)
+    try:
+        task = asyncio.create_task(daemon.run())
+        await asyncio.wait_for(daemon.ready.wait(), 5)
+        daemon.request_shutdown()
+        assert await asyncio.wait_for(task, 10) == EXIT_ROWS_LOST == 5
+    finally:
+        pty.close()
+    assert journal.health().dropped_rows >= 2  # daemon_started, daemon_stopped
+    assert "the journal lost rows during this run" in capsys.readouterr().out

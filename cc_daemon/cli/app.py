@@ -175,6 +175,7 @@ _COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("simulate-sonde",), "cc_daemon.sim.sondecli", "add_command"),
     (("winch",), "cc_daemon.cli.winch", "add_command"),
     (("release",), "cc_daemon.cli.release", "add_command"),
+    (("recover",), "cc_daemon.cli.recover", "add_command"),
     (("simulate-sonar",), "cc_daemon.sim.sonar_cli", "add_commands"),
 )
 _HELP = ("-h", "--help")

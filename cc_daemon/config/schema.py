@@ -279,6 +279,18 @@ class StoreSettings(BaseModel):
     # each interval is kept, the rest counted. Bounds the disk a babbling
     # autopilot can fill, and the memory the unwritten rows can take.
     telemetry_rate_hz: Annotated[float, Field(ge=0.1, le=10.0)] = 2.0
+    # A second place for rows the journal cannot write yet (another card),
+    # tried after the journal's own directory, before the state and runtime ones.
+    spill_dir: Annotated[Path | None, BeforeValidator(_empty_is_none), AfterValidator(_no_nul)] = (
+        None
+    )
+    # The mode of the journal, its -wal and -shm, and spill files when created
+    # (octal text): owner writes, its group may read, nobody else.
+    file_mode: Annotated[str, Field(pattern=r"^0?[0-7]{3}$")] = "0640"
+
+    @property
+    def file_mode_bits(self) -> int:
+        return int(self.file_mode, 8)
 
 
 class LogSettings(BaseModel):

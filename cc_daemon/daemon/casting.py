@@ -55,6 +55,8 @@ _log = structlog.get_logger("cc_daemon.service")
 
 EXIT_OK = 0
 EXIT_PROBE_MAY_BE_DOWN = 130
+# The journal dropped rows (no file and no spill file could take them): say so.
+EXIT_ROWS_LOST = 5
 
 
 class ActiveCast:

@@ -135,6 +135,8 @@ def make_journal(settings: Settings) -> Journal:
     return Journal(
         settings.store.path or default_store_path(),
         telemetry_rate_hz=settings.store.telemetry_rate_hz,
+        spill_dir=settings.store.spill_dir,
+        file_mode=settings.store.file_mode_bits,
         winch_backend=backend_name(settings),
         simulated=is_simulated(settings),
     )

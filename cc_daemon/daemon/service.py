@@ -1,13 +1,11 @@
 """The daemon: the hub that routes autopilot messages and owns the lifecycle.
 
-It answers the autopilot from the link's read callback (so a reply goes out
-in the same loop iteration that read the request), remembers the latest fix,
-decides per `M` frame whether to start, repeat or refuse a cast, and starts the
-cast's pure state machine (`cast.machine`) against the winch in one task; how
-a cast's actions are carried out is its base class's (`casting.CastRunner`).
-The firmware's ways (stick jog, R-F repeats, lost M) are fed to `line_watch`,
-the sensors run as their own duties (`sonde`, `sonar`), and the status socket
-(`status`) reads `snapshot()`.
+It answers the autopilot from the link's read callback (a reply goes out in the
+loop iteration that read the request), remembers the latest fix, decides per `M`
+whether to start, repeat or refuse a cast, and runs the cast's pure machine
+against the winch in a task carried out by its base (`casting.CastRunner`). The
+firmware's ways go to `line_watch`, the sensors are duties of their own (`sonde`,
+`sonar`), and the status socket reads `status_inputs()`.
 
 Guarantees:
 - A handler's exception is logged and never stops the read loop.
@@ -52,7 +50,13 @@ from cc_daemon.core.protocol import (
 )
 from cc_daemon.core.status import DaemonStatus, Fix
 from cc_daemon.core.winch.status import Winch, WinchStatus, refuses_casts
-from cc_daemon.daemon.casting import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, ActiveCast, CastRunner
+from cc_daemon.daemon.casting import (
+    EXIT_OK,
+    EXIT_PROBE_MAY_BE_DOWN,
+    EXIT_ROWS_LOST,
+    ActiveCast,
+    CastRunner,
+)
 from cc_daemon.daemon.line_watch import LineWatch, watch_line
 from cc_daemon.daemon.preflight import make_journal
 from cc_daemon.daemon.quiet_port import QuietPort
@@ -334,6 +338,11 @@ class Daemon(CastRunner):
                     )
                 journal.record_event("daemon_stopped", exit_code=self._exit_code)
                 journal.close()
+                lost = journal.health().dropped_rows
+                if lost:
+                    _log.error("the journal lost rows during this run", dropped_rows=lost)
+                    if self._exit_code == EXIT_OK:
+                        self._exit_code = EXIT_ROWS_LOST
         _log.info("cc-daemon stopped", exit_code=self._exit_code)
         try:
             flush_rate_limited(everything=True)
@@ -414,8 +423,6 @@ class Daemon(CastRunner):
         self._output_loss_reported = True
         self._journal_event("log_output_lost", error=loss.error)
         self._notifier.notify(f"STATUS=log output lost ({loss.error}); events go to the journal")
-
-    # ------------------------------------------------------------ status
 
     def snapshot(self) -> DaemonStatus:
         cast = self._cast

@@ -144,6 +144,8 @@ def _journal(src: Source) -> dict[str, Any] | None:
         "dropped_rows": health.dropped_rows,
         "last_error": health.last_error,
         "writer_alive": health.writer_alive,
+        "spilled_rows": health.spilled_rows,  # of pending_rows, waiting in spill files
+        "spill_files": [str(p) for p in health.spill_files],
         "disk_free_bytes": free,
     }
 

@@ -184,10 +184,12 @@ async def serve_status(
             _log.warning("no status socket: every path the rule gives is too long")
         await asyncio.Future()  # nothing to serve, for the daemon's lifetime
         return
-    if settings.path is None and not path.parent.exists():
-        # $XDG_RUNTIME_DIR/cc-daemon: ours to make, private to the user.
+    runtime = os.environ.get("XDG_RUNTIME_DIR", "")
+    if settings.path is None and runtime and path.parent == Path(runtime) / "cc-daemon":
+        # $XDG_RUNTIME_DIR/cc-daemon: ours to make, private to the user. Never the
+        # journal's directory: a socket must not make a path the journal found gone.
         with contextlib.suppress(OSError):
-            path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+            path.parent.mkdir(mode=0o700, exist_ok=True)
     _log.info("status socket", path=str(path))
     server = StatusServer(
         path,

@@ -9,11 +9,11 @@ layout and its migrations. Nothing in this package imports asyncio: the
 journal's thread is invisible to its callers.
 """
 
+from cc_daemon.store.health import JournalHealth
 from cc_daemon.store.journal import (
     OUTCOMES,
     PHASES,
     Journal,
-    JournalHealth,
     default_store_path,
 )
 from cc_daemon.store.reader import (

@@ -20,16 +20,15 @@ import os
 import sqlite3
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cc_daemon import __version__
 from cc_daemon.core.protocol import StartMeasuring, Telemetry
 from cc_daemon.ground.clocksync import clock_sync
 from cc_daemon.store import sonde
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
+from cc_daemon.store.health import JournalHealth
 from cc_daemon.store.rows import (
     CAST,
     END,
@@ -39,34 +38,20 @@ from cc_daemon.store.rows import (
     INSERT_FIX,
     INSERT_SAMPLE,
     INSERT_SONAR,
-    RECOVER_UNFINISHED,
     SAMPLE,
     SONAR,
     SPILL_LAYOUT,
     UPDATE_END,
 )
+from cc_daemon.store.sessions import close_unfinished, open_session, session_exists
+from cc_daemon.store.spill import DEFAULT_FILE_MODE
 from cc_daemon.store.thinning import FixThinner, buffer_rows
 from cc_daemon.store.writer import BufferedWriter
 
 PHASES = frozenset({"soaking", "descending", "dwelling", "ascending", "aborting", "stranded"})
 OUTCOMES = frozenset({"completed", "skipped-shallow", "aborted", "unfinished"})
-BOOT_ID = Path("/proc/sys/kernel/random/boot_id")
 SYNC_CHECK_INTERVAL_S = 1.0
 UNFINISHED_REASON = "no end recorded: the daemon stopped during the cast (crash, kill or power cut)"
-
-
-@dataclass(frozen=True, slots=True)
-class JournalHealth:
-    """A snapshot of the journal's state, for the daemon's status and logs."""
-
-    path: Path  # the file in use: a fresh one if the configured one could never be used
-    writable: bool  # the file is open and the last write succeeded
-    pending_rows: int  # recorded but not yet committed
-    rows_written: int
-    write_errors: int  # failed attempts to open or write the file
-    dropped_rows: int  # given up for good: buffer overflow or a row SQLite refused
-    last_error: str | None
-    writer_alive: bool = False  # the writer thread is running (restarted if it ever stops)
 
 
 def _kernel_says_synced() -> bool:
@@ -84,13 +69,6 @@ def _to_json(value: object) -> str:
     # default=str: a plan or event detail holding a Path, an enum or a
     # datetime is stored readably instead of failing the whole row.
     return json.dumps(value, default=str, sort_keys=True, separators=(",", ":"))
-
-
-def _boot_id() -> str | None:
-    try:
-        return BOOT_ID.read_text().strip()
-    except OSError:
-        return None
 
 
 class Journal(BufferedWriter):
@@ -119,6 +97,8 @@ class Journal(BufferedWriter):
         winch_backend: str | None = None,
         simulated: bool | None = None,
         telemetry_rate_hz: float | None = None,
+        spill_dir: Path | None = None,
+        file_mode: int = DEFAULT_FILE_MODE,
     ) -> None:
         """`on_connect` is called with every new connection before use (tests use it
         to set `PRAGMA max_page_count`, which makes SQLite report a full disk).
@@ -136,7 +116,12 @@ class Journal(BufferedWriter):
                 100_000 if telemetry_rate_hz is None else buffer_rows(telemetry_rate_hz)
             )
         super().__init__(
-            path, wall=wall, max_buffered_rows=max_buffered_rows, on_connect=on_connect
+            path,
+            wall=wall,
+            max_buffered_rows=max_buffered_rows,
+            on_connect=on_connect,
+            spill_dir=spill_dir,
+            file_mode=file_mode,
         )
         self._monotonic = monotonic
         # The same answer `cc-daemon status` gives: the kernel's (adjtimex), which
@@ -166,19 +151,30 @@ class Journal(BufferedWriter):
 
     def health(self) -> JournalHealth:
         with self._lock:  # pending and written from the same instant
-            pending = self._pending_locked()
+            spilled = self._spilled.rows
+            pending = self._pending_locked() + spilled
             written = self._rows_written
         thread = self._thread
+        stalled = self._stalled_s()
+        last_error = self._last_error
+        if stalled is not None:  # a frozen filesystem: the write has not come back
+            last_error = f"journal write not done after {stalled:.0f} s (filesystem frozen?)"
         return JournalHealth(
             path=self._active,
-            writable=self._conn is not None and not self._failing,
+            writable=self._conn is not None and not self._failing and stalled is None,
             pending_rows=pending,
             rows_written=written,
             write_errors=self._write_errors,
             dropped_rows=self._dropped_rows,
-            last_error=self._last_error,
+            last_error=last_error,
             writer_alive=thread is not None and thread.is_alive(),
+            spilled_rows=spilled,
+            spill_files=tuple(self._spilled.files),
         )
+
+    def _episode_ended(self, **detail: object) -> None:
+        """Journal the episode of failure that just ended (a full disk, say)."""
+        self.record_event("journal_unwritable", **detail)
 
     # ------------------------------------------------- loop-thread recording
     # Each method catches every exception: the journal's contract is that it
@@ -454,7 +450,7 @@ class Journal(BufferedWriter):
     def _prepare(self, conn: sqlite3.Connection) -> list[tuple[int, int, float | None]]:
         """A session row for this run; the first time, close casts a crash left open."""
         self._ensure_session(conn)
-        found = [] if self._recovered else self._recover(conn)
+        found = [] if self._recovered else close_unfinished(conn, UNFINISHED_REASON)
         max_id = conn.execute("SELECT coalesce(max(id), 0) FROM casts").fetchone()[0]
         with self._lock:
             self._next_cast_id = max(self._next_cast_id, int(max_id) + 1)
@@ -490,37 +486,16 @@ class Journal(BufferedWriter):
         return rows
 
     def _ensure_session(self, conn: sqlite3.Connection) -> None:
-        if (
-            self._session_id is not None
-            and conn.execute("SELECT 1 FROM sessions WHERE id = ?", (self._session_id,)).fetchone()
-        ):
+        if self._session_id is not None and session_exists(conn, self._session_id):
             return
-        mono = self._monotonic()
-        cursor = conn.execute(
-            "INSERT INTO sessions (boot_id, pid, software, opened_mono_s, opened_wall_s,"
-            " clock_synced, winch_backend, simulated) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-            (
-                _boot_id(),
-                os.getpid(),
-                f"cc-daemon {__version__}",
-                mono,
-                self._wall(),
-                self._ask_clock_synced(),
-                self._winch_backend,
-                self._simulated,
-            ),
+        self._session_id = open_session(
+            conn,
+            monotonic=self._monotonic(),
+            wall=self._wall(),
+            clock_synced=self._ask_clock_synced(),
+            winch_backend=self._winch_backend,
+            simulated=self._simulated,
         )
-        self._session_id = cursor.lastrowid
-
-    def _recover(self, conn: sqlite3.Connection) -> list[tuple[int, int, float | None]]:
-        found = conn.execute(
-            "SELECT c.id, count(s.id), max(s.depth_m) FROM casts c"
-            " LEFT JOIN samples s ON s.cast_id = c.id"
-            " WHERE c.outcome IS NULL GROUP BY c.id ORDER BY c.id"
-        ).fetchall()
-        if found:
-            conn.execute(RECOVER_UNFINISHED, (UNFINISHED_REASON,))
-        return [(int(i), int(n), deepest) for i, n, deepest in found]
 
     def _stored_id(self, cast_id: int, new_ids: dict[int, int]) -> int:
         """The id cast `cast_id` is stored under (another if its own was taken)."""
@@ -590,6 +565,7 @@ class Journal(BufferedWriter):
         try:
             table, columns = SPILL_LAYOUT[row[0]]
             record: dict[str, object] = {"table": table, "session_id": self._session_id}
+            record["row"] = list(row)  # as recorded: what this run replays
             record.update(zip(columns, row[1:], strict=False))
             if row[0] in (SAMPLE, END) or (row[0] == sonde.SONDE and row[1] is not None):
                 record["cast_id"] = self._stored_id(row[1], {})

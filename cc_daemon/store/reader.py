@@ -8,11 +8,15 @@ work at once) and never marks a running cast `unfinished` (only the daemon's
 `Journal.open()` may decide that a cast was left by a crash). A file from an
 older cc-daemon is migrated in a private in-memory copy, never in place.
 
-A WAL reader needs the `-shm` file beside the journal, which it must create if
-the daemon is not running; a user who may read the file but not write its
-directory (the daemon's state directory, say) cannot. Then the reader opens
-the file `immutable` if it has no write-ahead log (the daemon stopped cleanly),
-or else reads a private copy of the file and its log in a temporary directory.
+A journal with no write-ahead log beside it is one nobody has open (SQLite
+removes `-wal` and `-shm` with the last connection): the reader opens it
+`immutable`, which reads the file alone and creates nothing beside it, so a
+data command leaves no `-wal`/`-shm` behind and needs no write access to the
+directory. That is safe because a daemon that starts meanwhile writes to its
+new log, not to the file, until a checkpoint (4 MB of log, or its close). With
+a log present (the daemon running, or killed) the reader opens it `mode=ro`,
+using the `-shm` that is there; if it cannot (a directory it may not write),
+it reads a private copy of the file and its log in a temporary directory.
 
 All the reads of one `JournalReader` see one snapshot of the file, so a cast
 and its samples agree even while the daemon is writing.
@@ -25,13 +29,27 @@ import os
 import shutil
 import sqlite3
 import tempfile
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 from cc_daemon.store import schema, sonar, sonde
 from cc_daemon.store.schema import StoreError
-from cc_daemon.store.surveys import ALL, LATEST, SurveyRecord, list_surveys
+from cc_daemon.store.surveys import SurveyRecord, choose_survey, list_surveys
+
+if TYPE_CHECKING:
+    from cc_daemon.store.damage import Salvage
+
+R = TypeVar("R")
+
+
+_UNREADABLE_JSON = frozenset({"unreadable_detail", "unreadable_plan"})
+
+
+class DamagedJournalError(StoreError):
+    """The journal is damaged: what could not be read, in one line."""
+
 
 # SQLite's primary result codes for "may not write here" and "cannot open".
 _SQLITE_READONLY = 8
@@ -137,9 +155,9 @@ _FIX_COLUMNS = (
 
 def _cast(row: tuple[Any, ...]) -> CastRecord:
     try:
-        plan = json.loads(row[13])
-    except ValueError:
-        plan = {"unreadable_plan": row[13]}
+        plan = json.loads(_plain(row[13]))
+    except (ValueError, TypeError):
+        plan = {"unreadable_plan": repr(row[13])}
     return CastRecord(
         id=row[0],
         session_id=row[1],
@@ -163,6 +181,38 @@ def _cast(row: tuple[Any, ...]) -> CastRecord:
         samples=row[19],
         winch_backend=row[20],
         simulated=None if row[21] is None else bool(row[21]),
+    )
+
+
+def _plain(value: Any) -> Any:
+    """A JSON value as stored: text, or bytes where text belongs (a damaged file)."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8")  # UnicodeDecodeError: a ValueError, the row is skipped
+    return value
+
+
+def _event(r: tuple[Any, ...]) -> EventRecord:
+    try:
+        detail = json.loads(_plain(r[5]))
+    except (ValueError, TypeError):
+        detail = {"unreadable_detail": repr(r[5])}
+    if not isinstance(r[4], str):
+        raise TypeError(f"event kind {r[4]!r}")
+    return EventRecord(r[0], float(r[1]), float(r[2]), bool(r[3]), r[4], detail)
+
+
+def _sample(r: tuple[Any, ...]) -> SampleRecord:
+    if not isinstance(r[5], str):
+        raise TypeError(f"phase {r[5]!r}")
+    return SampleRecord(
+        cast_id=int(r[0]),
+        mono_s=float(r[1]),
+        wall_s=float(r[2]),
+        clock_synced=bool(r[3]),
+        depth_m=float(r[4]),
+        phase=r[5],
+        lat_deg=None if r[6] is None else r[6] / 1e7,
+        lon_deg=None if r[7] is None else r[7] / 1e7,
     )
 
 
@@ -207,7 +257,12 @@ class JournalReader:
         uri = self.path.resolve().as_uri()
         try:
             try:
-                conn = self._snapshot(f"{uri}?mode=ro")
+                if not os.path.lexists(f"{self.path}-wal"):
+                    # Nobody has it open (SQLite removes the log with its last
+                    # connection): read the file alone, making nothing beside it.
+                    conn = self._snapshot(f"{uri}?immutable=1")
+                else:
+                    conn = self._snapshot(f"{uri}?mode=ro")
             except sqlite3.OperationalError as exc:
                 code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
                 if code not in (_SQLITE_READONLY, _SQLITE_CANTOPEN):
@@ -218,11 +273,116 @@ class JournalReader:
             raise StoreError(f"{self.path}: {exc}") from exc
         except sqlite3.Error as exc:
             self._drop_private()
-            raise StoreError(f"cannot read {self.path}: {exc}") from exc
+            hint = (
+                "; `cc-daemon recover` saves what can be read"
+                if isinstance(exc, sqlite3.DatabaseError)
+                and ("malformed" in str(exc) or "not a database" in str(exc))
+                else ""
+            )
+            raise StoreError(f"cannot read {self.path}: {exc}{hint}") from exc
         except OSError as exc:
             self._drop_private()
             raise StoreError(f"cannot read {self.path}: {exc}") from exc
         self._conn = conn
+        self._bad_text = 0
+        self._bad_rows: dict[str, int] = {}
+        self._bad_json: dict[str, int] = {}
+        conn.text_factory = self._decode
+        self.salvage: Salvage | None = None  # set when read from a salvaged copy
+        try:
+            self.problems = self._judge()
+        except BaseException:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------ damage
+
+    def _decode(self, raw: bytes) -> str:
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError:
+            self._bad_text += 1
+            return raw.decode("utf-8", errors="replace")
+
+    def _judge(self) -> list[str]:
+        """What is wrong with the file; a damaged one is read from a salvaged copy."""
+        from cc_daemon.store import damage  # the daemon imports this module, never needs that
+
+        problems: list[str] = []
+        wal = damage.wal_damage(self.path)
+        if wal is not None:
+            problems.append(wal)
+        try:
+            found = damage.quick_check(self._conn)
+        except sqlite3.Error as exc:
+            found = [str(exc)]
+        if found:
+            problems.append(f"SQLite's check found damage: {'; '.join(found)}")
+            self._read_salvaged()
+        present = {n for (n,) in self._query("SELECT name FROM sqlite_master", (), "the schema")}
+        missing = [t for t in damage.journal_tables() if t not in present]
+        if missing:
+            problems.append(f"tables missing: {', '.join(missing)}")
+        return problems
+
+    def _read_salvaged(self) -> None:
+        """Read what `damage.salvage` can save of the file, from a private copy."""
+        if self._private is None:
+            self._private = tempfile.TemporaryDirectory(prefix="cc-daemon-read-")
+        from cc_daemon.store import damage
+
+        copy = Path(self._private.name) / f"salvaged-{self.path.name}"
+        try:
+            salvage = damage.salvage(self.path, copy)
+        except (sqlite3.Error, OSError) as exc:
+            raise DamagedJournalError(f"{self.path} is damaged beyond reading: {exc}") from exc
+        self._conn.close()
+        self._conn = sqlite3.connect(f"{copy.as_uri()}?mode=ro", uri=True, isolation_level=None)
+        self._conn.text_factory = self._decode
+        self._conn.execute("BEGIN")
+        self.salvage = salvage
+
+    def _query(self, sql: str, params: Any, what: str) -> list[tuple[Any, ...]]:
+        try:
+            return self._conn.execute(sql, params).fetchall()
+        except sqlite3.Error as exc:
+            raise DamagedJournalError(
+                f"{self.path} is damaged: cannot read {what} ({exc});"
+                " `cc-daemon recover` saves what can be read"
+            ) from exc
+
+    def _records(
+        self, convert: Callable[[tuple[Any, ...]], R], rows: list[Any], what: str
+    ) -> list[R]:
+        records = []
+        for row in rows:
+            try:
+                record = convert(row)
+            except (TypeError, ValueError, ArithmeticError):
+                self._bad_rows[what] = self._bad_rows.get(what, 0) + 1
+                continue
+            records.append(record)
+            json_value = getattr(record, "detail", None) or getattr(record, "plan", None)
+            if isinstance(json_value, dict) and _UNREADABLE_JSON & json_value.keys():
+                self._bad_json[what] = self._bad_json.get(what, 0) + 1
+        return records
+
+    def damage_report(self) -> str | None:
+        """One line saying what this reader could not read, or None if nothing."""
+        said = list(self.problems)
+        said += [f"{n} unreadable {what} skipped" for what, n in self._bad_rows.items()]
+        said += [
+            f"{n} {what} with unreadable JSON (given as it is)"
+            for what, n in self._bad_json.items()
+        ]
+        if self._bad_text:
+            said.append(f"{self._bad_text} text values not valid UTF-8 (shown with U+FFFD)")
+        if not said:
+            return None
+        return (
+            f"{self.path} is damaged: {'; '.join(said)}; the answer lacks what could not be"
+            " read (`cc-daemon recover` saves what can be)"
+        )
 
     def _snapshot(self, uri: str) -> sqlite3.Connection:
         """Open `uri` and begin the one read transaction of the reader's life."""
@@ -287,21 +447,27 @@ class JournalReader:
 
     def copy_to(self, target: sqlite3.Connection) -> None:
         """Copy this reader's snapshot, whole, into `target` (SQLite's online backup)."""
-        self._conn.backup(target)
+        try:
+            self._conn.backup(target)
+        except sqlite3.DatabaseError as exc:
+            raise DamagedJournalError(f"{self.path} is damaged: cannot copy it ({exc})") from exc
 
     def __enter__(self) -> JournalReader:
         return self
 
-    def __exit__(self, *exc_info: object) -> None:
+    def __exit__(self, exc_type: object, *exc_info: object) -> None:
         self.close()
+        report = self.damage_report() if exc_type is None else None
+        if report is not None:  # after the answer: say what it lacks
+            raise DamagedJournalError(report)
 
     def casts(self, *, cast_id: int | None = None, since: float | None = None) -> list[CastRecord]:
         """Casts by id; `since` keeps those started at or after that Unix time."""
         where, params = self._filters(
             ("id", cast_id), ("start_wall_s >=", since), ("session_id", self.survey)
         )
-        rows = self._conn.execute(f"SELECT {_CAST_COLUMNS} FROM casts{where} ORDER BY id", params)
-        return [_cast(row) for row in rows]
+        rows = self._query(f"SELECT {_CAST_COLUMNS} FROM casts{where} ORDER BY id", params, "casts")
+        return self._records(_cast, rows, "casts")
 
     def samples(
         self, *, cast_id: int | None = None, since: float | None = None
@@ -310,25 +476,14 @@ class JournalReader:
         where, params = self._filters(
             ("s.cast_id", cast_id), ("s.wall_s >=", since), ("c.session_id", self.survey)
         )
-        rows = self._conn.execute(
+        rows = self._query(
             "SELECT s.cast_id, s.mono_s, s.wall_s, s.clock_synced, s.depth_m, s.phase,"
             f" c.lat_e7, c.lon_e7 FROM samples s LEFT JOIN casts c ON c.id = s.cast_id{where}"
             " ORDER BY s.cast_id, s.mono_s, s.id",
             params,
+            "samples",
         )
-        return [
-            SampleRecord(
-                cast_id=r[0],
-                mono_s=r[1],
-                wall_s=r[2],
-                clock_synced=bool(r[3]),
-                depth_m=r[4],
-                phase=r[5],
-                lat_deg=None if r[6] is None else r[6] / 1e7,
-                lon_deg=None if r[7] is None else r[7] / 1e7,
-            )
-            for r in rows
-        ]
+        return self._records(_sample, rows, "samples")
 
     def fixes(self, *, cast_id: int | None = None, since: float | None = None) -> list[FixRecord]:
         """Fixes in the order received; with `cast_id`, those received during that cast."""
@@ -354,40 +509,45 @@ class JournalReader:
             clauses.append("session_id = ?")
             params.append(self.survey)
         where = f" WHERE {' AND '.join(clauses)}" if clauses else ""
-        rows = self._conn.execute(f"SELECT {_FIX_COLUMNS} FROM fixes{where} ORDER BY id", params)
+        rows = self._query(f"SELECT {_FIX_COLUMNS} FROM fixes{where} ORDER BY id", params, "fixes")
         orders = self._session_orders()
-        return [_fix(row, orders) for row in rows]
+        return self._records(lambda row: _fix(row, orders), rows, "fixes")
 
     def _session_orders(self) -> dict[int | None, str]:
         """Each session's last byte order: "big" until the daemon learnt the order, then
         the one it learnt, so the frames before that are re-decoded with it."""
-        rows = self._conn.execute(
+        rows = self._query(
             "SELECT session_id, ap_time_order, max(id) FROM fixes"
-            " WHERE ap_time_order IS NOT NULL AND session_id IS NOT NULL GROUP BY session_id"
+            " WHERE ap_time_order IS NOT NULL AND session_id IS NOT NULL GROUP BY session_id",
+            (),
+            "fixes",
         )
-        return {session: order for session, order, _ in rows}
+        return {session: order for session, order, _ in rows if isinstance(order, str)}
 
     def events(self, *, since: float | None = None) -> list[EventRecord]:
         where, params = self._filters(("wall_s >=", since), ("session_id", self.survey))
-        rows = self._conn.execute(
+        rows = self._query(
             "SELECT session_id, mono_s, wall_s, clock_synced, kind, detail_json"
             f" FROM events{where} ORDER BY id",
             params,
+            "events",
         )
-        records = []
-        for r in rows:
-            try:
-                detail = json.loads(r[5])
-            except ValueError:
-                detail = {"unreadable_detail": r[5]}
-            records.append(EventRecord(r[0], r[1], r[2], bool(r[3]), r[4], detail))
-        return records
+        return self._records(_event, rows, "events")
 
     def sonde_samples(
         self, *, cast_id: int | None = None, since: float | None = None
     ) -> list[sonde.SondeSampleRecord]:
         """The sonde's readings in time order (`store.sonde`)."""
-        return sonde.read_samples(self._conn, cast_id=cast_id, since=since, session=self.survey)
+        try:
+            return sonde.read_samples(self._conn, cast_id=cast_id, since=since, session=self.survey)
+        except sqlite3.Error as exc:
+            raise DamagedJournalError(
+                f"{self.path} is damaged: cannot read the sonde's samples ({exc})"
+            ) from exc
+        except (TypeError, ValueError, ArithmeticError) as exc:
+            raise DamagedJournalError(
+                f"{self.path} is damaged: an unreadable sonde sample ({exc})"
+            ) from exc
 
     def surveys(self) -> list[SurveyRecord]:
         """Every survey in the file (`store.surveys`), whatever `survey` is set to."""
@@ -396,37 +556,28 @@ class JournalReader:
     def select_survey(self, choice: str | int) -> SurveyRecord | None:
         """Read only the survey `choice` names (`latest`, a number, or `all`: None).
         StoreError if there is no such survey."""
-        surveys = self.surveys()
-        if choice == ALL:
-            self.survey = None
-            return None
-        if choice == LATEST:
-            if not surveys:
-                self.survey = None
-                return None
-            chosen = surveys[-1]
-        else:
-            found = [s for s in surveys if s.id == choice]
-            if not found:
-                known = ", ".join(str(s.id) for s in surveys) or "none"
-                raise StoreError(f"no survey {choice} in {self.path} (surveys: {known})")
-            chosen = found[0]
-        self.survey = chosen.id
+        chosen = choose_survey(self.surveys(), choice, self.path)
+        self.survey = None if chosen is None else chosen.id
         return chosen
 
     def sonar_readings(
         self, *, since: float | None = None, until: float | None = None
     ) -> list[sonar.SonarReadingRecord]:
         """The daemon's own sonar readings in time order (`store.sonar`)."""
-        return sonar.read_readings(self._conn, since=since, until=until)
+        try:
+            return sonar.read_readings(self._conn, since=since, until=until)
+        except sqlite3.Error as exc:
+            raise DamagedJournalError(
+                f"{self.path} is damaged: cannot read the sonar's readings ({exc})"
+            ) from exc
 
     def _cast_end(self, cast: CastRecord) -> tuple[float, float]:
         """When a cast's data ends: its end row, else its last sample, else its start."""
         if cast.end_mono_s is not None and cast.end_wall_s is not None:
             return cast.end_mono_s, cast.end_wall_s
-        last = self._conn.execute(
-            "SELECT max(mono_s), max(wall_s) FROM samples WHERE cast_id = ?", (cast.id,)
-        ).fetchone()
+        last = self._query(
+            "SELECT max(mono_s), max(wall_s) FROM samples WHERE cast_id = ?", (cast.id,), "samples"
+        )[0]
         if last[0] is None:
             return cast.start_mono_s, cast.start_wall_s
         return float(last[0]), float(last[1])

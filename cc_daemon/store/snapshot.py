@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from cc_daemon.store.reader import JournalReader, iso_utc
+from cc_daemon.store.reader import DamagedJournalError, JournalReader, iso_utc
 from cc_daemon.store.schema import StoreError
 
 _SPAN_SQL = """
@@ -81,16 +81,39 @@ def take_snapshot(source: Path, dest: Path) -> SnapshotReport:
     `StoreError` if the journal cannot be read or the copy is not sound.
     """
     path = destination(source, dest)
-    with JournalReader(source) as reader:  # raises StoreError for a missing journal
-        # O_EXCL: never overwrite, even a file that appears while we look.
-        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
-        try:
-            report = _copy(reader, source, path)
-        except BaseException:
-            path.unlink(missing_ok=True)
-            Path(f"{path}-journal").unlink(missing_ok=True)
+    report: SnapshotReport | None = None
+    try:
+        with JournalReader(source) as reader:  # raises StoreError for a missing journal
+            # O_EXCL: never overwrite, even a file that appears while we look.
+            os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+            try:
+                report = _copy(reader, source, path)
+            except BaseException:
+                path.unlink(missing_ok=True)
+                Path(f"{path}-journal").unlink(missing_ok=True)
+                raise
+    except DamagedJournalError as exc:
+        if report is None:
             raise
+        # A copy of what could be read is worth keeping; but it is no backup of all.
+        raise DamagedJournalError(
+            f"copied only what could be read to {path} ({_counts(report)}): {exc}"
+        ) from exc
     return report
+
+
+def _counts(report: SnapshotReport) -> str:
+    return f"{report.casts} casts, {report.samples} samples, {report.fixes} fixes"
+
+
+_COUNTED = ("casts", "samples", "fixes", "events")
+
+
+def _rows_in(conn: sqlite3.Connection, table: str) -> int:
+    try:
+        return int(conn.execute(f"SELECT count(*) FROM {table}").fetchone()[0])
+    except sqlite3.Error:  # a table gone from a damaged journal: its reader says so
+        return 0
 
 
 def _copy(reader: JournalReader, source: Path, path: Path) -> SnapshotReport:
@@ -105,11 +128,11 @@ def _copy(reader: JournalReader, source: Path, path: Path) -> SnapshotReport:
             raise StoreError(f"could not copy {source} to {path}: {exc}") from exc
         if check != "ok":
             raise StoreError(f"the copy of {source} failed its check: {check}")
-        casts, samples, fixes, events = (
-            int(target.execute(f"SELECT count(*) FROM {table}").fetchone()[0])
-            for table in ("casts", "samples", "fixes", "events")
-        )
-        first, last = target.execute(_SPAN_SQL).fetchone()
+        casts, samples, fixes, events = (_rows_in(target, table) for table in _COUNTED)
+        try:
+            first, last = target.execute(_SPAN_SQL).fetchone()
+        except sqlite3.Error:  # a table gone from a damaged journal: its reader says so
+            first = last = None
     finally:
         target.close()
     return SnapshotReport(

@@ -73,6 +73,24 @@ def list_surveys(conn: sqlite3.Connection) -> list[SurveyRecord]:
     return out
 
 
+def choose_survey(
+    surveys: list[SurveyRecord], choice: str | int, path: object
+) -> SurveyRecord | None:
+    """The survey `choice` names among `surveys` (`all`, or `latest` of none: None);
+    StoreError naming the file's surveys if there is no such one."""
+    from cc_daemon.store.schema import StoreError
+
+    if choice == ALL or (choice == LATEST and not surveys):
+        return None
+    if choice == LATEST:
+        return surveys[-1]
+    found = [s for s in surveys if s.id == choice]
+    if not found:
+        known = ", ".join(str(s.id) for s in surveys) or "none"
+        raise StoreError(f"no survey {choice} in {path} (surveys: {known})")
+    return found[0]
+
+
 def parse_survey(text: str) -> str | int:
     """`--survey`'s value: a survey's number, `all` or `latest`; ValueError otherwise."""
     word = text.strip().lower()

@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Any, Self
 
 from cc_daemon.store import schema
-from cc_daemon.store.buffer import FIX, Row, RowBuffer
+from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import (
     ROW_ERRORS,
     STORAGE_ERRORS,
@@ -54,8 +54,9 @@ from cc_daemon.store.failures import (
     state_directories,
     unused_path,
     utc_stamp,
-    write_new_file,
 )
+from cc_daemon.store.spill import DEFAULT_FILE_MODE, create_file
+from cc_daemon.store.spillover import MAX_TRANSACTION_ROWS, SpillOver
 
 FLUSH_INTERVAL_S = 1.0
 FULL_SYNC_INTERVAL_S = 5.0
@@ -63,9 +64,6 @@ RETRY_INTERVAL_S = 1.0
 # The writer is a thread, so waiting on a lock blocks nobody else; half a
 # second rides out a reader's checkpoint without piling up retries.
 BUSY_TIMEOUT_S = 0.5
-# Rows per transaction: enough to write a backlog fast, few enough that a
-# transaction needs little free space (tens of kB) and holds the lock briefly.
-MAX_TRANSACTION_ROWS = 500
 # Below this much free space the WAL is checkpointed and truncated after every
 # transaction (it normally grows to some 4 MB first): a WAL that has taken the
 # last free bytes cannot even be checkpointed, since that grows the file.
@@ -75,7 +73,7 @@ LOW_SPACE_BYTES = 8 << 20
 FIX_RESERVE_BYTES = 256 << 10
 
 
-class BufferedWriter(RowBuffer):
+class BufferedWriter(SpillOver):
     """A journal file with a writer thread. Construct, `open()`, add rows, `close()`.
 
     Call `open()` and `close()` from the thread that owns the daemon's start and
@@ -90,9 +88,10 @@ class BufferedWriter(RowBuffer):
         wall: Callable[[], float],
         max_buffered_rows: int,
         on_connect: Callable[[sqlite3.Connection], None] | None,
+        spill_dir: Path | None = None,
+        file_mode: int = DEFAULT_FILE_MODE,
     ) -> None:
-        super().__init__(max_buffered_rows)
-        self.path = Path(path)  # the configured file; health().path is the one in use
+        super().__init__(path, max_buffered_rows, spill_dir, file_mode)
         self._wall = wall
         self._on_connect = on_connect
         self._wake = threading.Event()
@@ -106,14 +105,11 @@ class BufferedWriter(RowBuffer):
         # Writer only (open() uses them before the writer starts). The
         # counters are read by health() from the loop: int reads are atomic.
         self._conn: sqlite3.Connection | None = None
-        self._active = self.path  # the file written to
         self._replacements: list[Path] | None = None  # set once _active proved unusable
         self._failing = False
         self._sync_mode = ""
         self._last_full_sync = -float("inf")
-        self._rows_written = 0
         self._write_errors = 0
-        self._last_error: str | None = None
 
     # ------------------------------------------------- what the subclass adds
 
@@ -137,9 +133,6 @@ class BufferedWriter(RowBuffer):
 
     def _before_pass(self) -> None:
         """Called by the writer thread before each pass (rows held back may be due)."""
-
-    def _spill_line(self, row: Row) -> str:
-        return repr(row)
 
     def _where(self) -> dict[str, str]:
         return {"path": str(self._active)}
@@ -213,20 +206,7 @@ class BufferedWriter(RowBuffer):
         with self._lock:
             rows = [*self._in_flight, *self._urgent, *self._fixes]
             self._in_flight, self._urgent, self._fixes = [], [], []
-        if not rows:
-            return
-        spilled = self._spill(rows)
-        emit(
-            "error",
-            "journal closed with rows it could not write; saved to a spill file"
-            if spilled
-            else "journal closed with rows it could not write; they are lost",
-            rows=len(rows),
-            spill_file=str(spilled) if spilled else None,
-            path=str(self._active),
-            opened=thread is not None,
-            last_error=self._last_error,
-        )
+        self._spill_at_close(rows, opened=thread is not None)
 
     def __enter__(self) -> Self:
         self.open()
@@ -312,11 +292,21 @@ class BufferedWriter(RowBuffer):
         was_failing = self._failing
         if self._conn is None:
             try:
+                self._busy_since = time.monotonic()
                 self._open_file()
             except STORAGE_ERRORS as exc:
                 self._fail(exc, "journal cannot be opened; keeping rows in memory")
+                self._spill_pending()
                 return
+            finally:
+                self._busy_since = None
         written_now = 0
+        replay_error, replay_later = self._replay()
+        if replay_error is not None:
+            if is_permanent(replay_error):
+                self._abandon(replay_error)
+            self._fail(replay_error, "journal write failed; keeping rows in a spill file")
+            return
         while True:
             with self._lock:
                 chunk = self._take_chunk_locked(MAX_TRANSACTION_ROWS, urgent=True)
@@ -331,8 +321,10 @@ class BufferedWriter(RowBuffer):
             done = written = 0
             error: BaseException | None = None
             try:
+                self._busy_since = time.monotonic()
                 done, written, error = self._commit(chunk)
             finally:
+                self._busy_since = None
                 # Whatever happened, what was not committed goes back, in order.
                 with self._lock:
                     self._rows_written += written
@@ -344,13 +336,27 @@ class BufferedWriter(RowBuffer):
                 if is_permanent(error):
                     self._abandon(error)
                 self._fail(error, "journal write failed; keeping rows in memory")
+                self._spill_pending()
                 return
             free = self._free_bytes()
             if free is not None and free < LOW_SPACE_BYTES:
                 self._checkpoint()
+        if replay_later is not None:  # spilled telemetry still waits
+            self._fail(replay_later, "journal write failed; keeping rows in a spill file")
+            return
         self._failing = False
         if was_failing:
+            self._last_error = None
             emit("info", "journal writable again", rows=written_now, path=str(self._active))
+        episode, self._episode = self._episode, None
+        if episode is not None:
+            started, started_wall, first_error, dropped_before = episode
+            self._episode_ended(
+                started_wall=started_wall,
+                seconds=round(time.monotonic() - started, 3),
+                error=first_error,
+                dropped_rows=self._dropped_rows - dropped_before,
+            )
 
     def _free_bytes(self) -> int | None:
         return free_bytes(self._active.parent)
@@ -359,6 +365,8 @@ class BufferedWriter(RowBuffer):
         """Whether the filesystem has more than `FIX_RESERVE_BYTES` free (if it can tell)."""
         free = self._free_bytes()
         if free is None or free >= FIX_RESERVE_BYTES:
+            if self._last_error is not None and self._last_error.startswith("disk nearly full"):
+                self._last_error = None
             return True
         self._last_error = f"disk nearly full: {free} bytes free"
         self._errors.error(
@@ -476,6 +484,9 @@ class BufferedWriter(RowBuffer):
 
     def _connect(self, path: Path) -> list[int]:
         """Open the file and make it ready (`_prepare`), then tell `_connected`."""
+        if not path.exists():
+            # SQLite gives -wal and -shm the mode of the file: one rule for all three.
+            create_file(path, self._file_mode)
         conn = sqlite3.connect(
             path,
             timeout=BUSY_TIMEOUT_S,
@@ -564,6 +575,11 @@ class BufferedWriter(RowBuffer):
         self._write_errors += 1
         self._last_error = f"{type(exc).__name__}: {exc}"
         self._failing = True
+        if self._episode is None:
+            wall = time.time()
+            with contextlib.suppress(Exception):
+                wall = self._wall()
+            self._episode = (time.monotonic(), wall, self._last_error, self._dropped_rows)
         self._disconnect()
         self._errors.error(
             f"fail:{exc}",
@@ -580,17 +596,3 @@ class BufferedWriter(RowBuffer):
         if conn is not None:
             with contextlib.suppress(sqlite3.Error):
                 conn.close()
-
-    # ------------------------------------------------------------- spill
-
-    def _spill(self, rows: list[Row]) -> Path | None:
-        """Save rows the journal could not write as JSON lines; return the file, or None."""
-        try:
-            stamp = utc_stamp(time.time())
-            name = f"{self.path.stem}-unwritten-{stamp}.jsonl"
-            directories = self._fallback_dirs(temporary=False)
-            lines = "".join(self._spill_line(row) + "\n" for row in rows)
-        except Exception as exc:
-            emit("error", "journal could not prepare its spill file", error=repr(exc))
-            return None
-        return write_new_file(lines, [directory / name for directory in directories])

@@ -126,6 +126,9 @@ def status_lines(doc: Document) -> list[tuple[str, str]]:
             f"{j.get('path', '?')}: {health}, {j.get('pending_rows', 0)} rows pending,"
             f" {_bytes(j.get('disk_free_bytes'))} free"
         )
+        if j.get("spilled_rows"):
+            files = ", ".join(str(f) for f in j.get("spill_files") or [])
+            text += f", {j['spilled_rows']} of them in spill files ({files})"
         if j.get("dropped_rows"):
             text += f", {j['dropped_rows']} rows DROPPED"
         if j.get("last_error"):
