@@ -12,6 +12,7 @@
     cc-daemon simulate-sonde --port PATH     the simulated sonde alone, on a pty at PATH
     cc-daemon winch status|home|down|up      the GPIO winch by hand (jog, home, calibrate)
     cc-daemon simulate-sonar --port P        the simulated Ping1D echosounder alone
+    cc-daemon web                            the field page: status and data in a browser
 
 Exit status: 0 success; 1 a tool found problems (corrupt frames, a protocol
 violation); 2 bad usage or configuration (nothing was opened); 3 a simulated
@@ -170,6 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
     from cc_daemon.cli.doctor import command as doctor_cli
     from cc_daemon.cli.parser import HintingParser
     from cc_daemon.cli.status import command as status_cli
+    from cc_daemon.cli.web import command as web_cli
     from cc_daemon.sim import commands as simulator
     from cc_daemon.sim import sonar_cli
     from cc_daemon.sim import sondecli as simulate_sonde
@@ -197,6 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
     simulate_sonde.add_command(sub)
     winchcli.add_command(sub)
     sonar_cli.add_commands(sub)
+    web_cli.add_command(sub)
     return parser
 
 

@@ -1,0 +1,196 @@
+"""The page's HTTP server (aiohttp): the page, its JSON and the downloads, GET only.
+
+The status comes from the daemon's socket, read in a thread with a 1 s timeout
+and shared by every client for half a second, so ten phones polling cost the
+daemon two reads a second; the journal is read in a thread through
+`JournalReader` (read-only). Nothing here can write to either, and an error in
+a handler is that request's 500, never the daemon's concern.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from aiohttp import web
+
+from cc_daemon.cli.status.client import StatusUnavailable, read_status
+from cc_daemon.cli.web import downloads, journaldata
+from cc_daemon.cli.web.auth import BasicAuth
+from cc_daemon.export import OptionalDependencyError
+from cc_daemon.store import StoreError
+
+STATUS_TIMEOUT_S = 1.0
+STATUS_SHARED_S = 0.5  # one socket read serves every client asking within this
+ASSETS = {
+    "/": ("index.html", "text/html; charset=utf-8"),
+    "/static/page.css": ("page.css", "text/css; charset=utf-8"),
+    "/static/page.js": ("page.js", "text/javascript; charset=utf-8"),
+}
+# Everything the page needs comes from here: no CDN, no inline script.
+_HEADERS = {
+    "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+    "Cache-Control": "no-store",
+}
+
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
+@dataclass(frozen=True, slots=True)
+class Sources:
+    socket: Path
+    journal: Path
+    password_hash: str | None = None
+
+
+def asset(name: str) -> bytes:
+    return resources.files("cc_daemon.cli.web").joinpath("static", name).read_bytes()
+
+
+class StatusCache:
+    """The last status document (or why there is none), shared for STATUS_SHARED_S."""
+
+    def __init__(self, socket: Path) -> None:
+        self._socket = socket
+        self._at = -1e9
+        self._doc: dict[str, Any] = {}
+        self._lock = asyncio.Lock()
+
+    async def get(self) -> dict[str, Any]:
+        async with self._lock:
+            if time.monotonic() - self._at >= STATUS_SHARED_S:
+                self._doc = await asyncio.to_thread(self._read)
+                self._at = time.monotonic()
+            return self._doc
+
+    def _read(self) -> dict[str, Any]:
+        try:
+            doc = read_status(self._socket, timeout_s=STATUS_TIMEOUT_S)
+        except StatusUnavailable as exc:
+            return {"reachable": False, "reason": str(exc), "read_at": time.time()}
+        return {**doc, "reachable": True, "read_at": time.time()}
+
+
+def _json_error(status: int, message: str) -> web.Response:
+    return web.json_response({"error": message}, status=status)
+
+
+def _int(request: web.Request, name: str) -> int:
+    try:
+        return int(request.match_info[name])
+    except ValueError:
+        raise web.HTTPNotFound() from None
+
+
+async def _journal(call: Callable[..., Any], *args: Any) -> web.Response:
+    try:
+        body = await asyncio.to_thread(call, *args)
+    except journaldata.NotFound as exc:
+        return _json_error(404, str(exc))
+    except StoreError as exc:
+        return _json_error(503, str(exc))
+    return web.json_response(body)
+
+
+def build_app(sources: Sources) -> web.Application:
+    auth = BasicAuth(sources.password_hash) if sources.password_hash else None
+    status = StatusCache(sources.socket)
+    pages = {path: (asset(name), kind) for path, (name, kind) in ASSETS.items()}
+
+    @web.middleware
+    async def guard(request: web.Request, handler: Handler) -> web.StreamResponse:
+        if auth is not None and not auth.allows(request.headers.get("Authorization")):
+            response: web.StreamResponse = web.Response(
+                status=401,
+                text="the field page needs its password\n",
+                headers={"WWW-Authenticate": 'Basic realm="cc-daemon", charset="UTF-8"'},
+            )
+        else:
+            try:
+                response = await handler(request)
+            except web.HTTPException as exc:  # 404, 405: raised, with our headers
+                exc.headers.update(_HEADERS)
+                raise
+        response.headers.update(_HEADERS)
+        return response
+
+    async def page(request: web.Request) -> web.Response:
+        body, kind = pages[request.path]
+        return web.Response(body=body, headers={"Content-Type": kind})
+
+    async def api_status(request: web.Request) -> web.Response:
+        return web.json_response(await status.get())
+
+    async def api_surveys(request: web.Request) -> web.Response:
+        return await _journal(journaldata.surveys, sources.journal)
+
+    async def api_casts(request: web.Request) -> web.Response:
+        return await _journal(journaldata.survey_casts, sources.journal, _int(request, "n"))
+
+    async def api_profile(request: web.Request) -> web.Response:
+        return await _journal(journaldata.cast_profile, sources.journal, _int(request, "n"))
+
+    async def api_events(request: web.Request) -> web.Response:
+        text = request.query.get("survey")
+        if text is not None and not text.isdigit():
+            return _json_error(400, f"survey={text!r}: a survey's number, e.g. survey=3")
+        survey = None if text is None else int(text)
+        return await _journal(journaldata.events, sources.journal, survey)
+
+    async def download(request: web.Request) -> web.Response:
+        n, fmt = _int(request, "n"), request.match_info["fmt"]
+        try:
+            body = await asyncio.to_thread(downloads.survey_file, sources.journal, n, fmt)
+        except journaldata.NotFound as exc:
+            return _json_error(404, str(exc))
+        except OptionalDependencyError as exc:
+            return _json_error(503, f"{exc} (on the Pi: pip install 'cc-daemon[netcdf]')")
+        except StoreError as exc:
+            return _json_error(503, str(exc))
+        except ValueError as exc:  # NetCDF of a survey without a cast
+            return _json_error(404, f"survey {n}: {exc}")
+        return web.Response(
+            body=body,
+            headers={
+                "Content-Type": downloads.FORMATS[fmt],
+                "Content-Disposition": f'attachment; filename="survey-{n}.{fmt}"',
+            },
+        )
+
+    app = web.Application(middlewares=[guard])
+    for path in pages:
+        app.router.add_get(path, page)
+    app.router.add_get("/api/status", api_status)
+    app.router.add_get("/api/surveys", api_surveys)
+    app.router.add_get("/api/surveys/{n}/casts", api_casts)
+    app.router.add_get("/api/casts/{n}/profile", api_profile)
+    app.router.add_get("/api/events", api_events)
+    app.router.add_get(r"/download/survey/{n}.{fmt:csv|geojson|nc}", download)
+    return app
+
+
+def split_listen(listen: str) -> tuple[str, int]:
+    host, _, port = listen.rpartition(":")
+    return host.strip("[]"), int(port)
+
+
+async def serve(sources: Sources, listen: str, *, ready: Callable[[str], None]) -> None:
+    """Serve until cancelled. OSError if the address cannot be bound."""
+    runner = web.AppRunner(build_app(sources), access_log=None, handle_signals=False)
+    await runner.setup()
+    try:
+        host, port = split_listen(listen)
+        site = web.TCPSite(runner, host, port, shutdown_timeout=1.0)
+        await site.start()
+        bound = runner.addresses[0]  # the real port when asked for port 0
+        ready(f"{host if ':' not in host else f'[{host}]'}:{bound[1]}")
+        await asyncio.Event().wait()
+    finally:
+        await runner.cleanup()
