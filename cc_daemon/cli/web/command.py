@@ -19,7 +19,9 @@ def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         "journal's surveys, read-only, to any browser on the boat's network.",
     )
     p.add_argument("--config", type=Path, help="TOML configuration file")
-    p.add_argument("--listen", help='host:port to listen on [web.listen] ("127.0.0.1:8080")')
+    p.add_argument(
+        "--listen", help='host:port to listen on [web.listen] ("127.0.0.1:8080"); port 0: any free'
+    )
     p.add_argument("--db", type=Path, help="the journal to read [store.path]")
     p.add_argument("--socket", type=Path, help="the daemon's status socket [status.path]")
     p.add_argument(
@@ -41,8 +43,11 @@ def run_web(args: argparse.Namespace) -> int:
     settings = load_settings(args.config)  # a bad key: ConfigError, exit 2, nothing bound
     web = settings.web
     if args.listen is not None:
+        # Port 0 on the command line only: a free port, said on stderr (for tests).
+        listen = args.listen.removesuffix(":0") + ":1" if args.listen.endswith(":0") else None
         try:
-            web = WebSettings(listen=args.listen, password_hash=web.password_hash)
+            web = WebSettings(listen=listen or args.listen, password_hash=web.password_hash)
+            web = web.model_copy(update={"listen": args.listen})
         except ValueError:
             print(f'cc-daemon web: --listen {args.listen}: must be "host:port"', file=sys.stderr)
             return EXIT_USAGE
