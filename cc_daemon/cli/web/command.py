@@ -58,12 +58,17 @@ def run_web(args: argparse.Namespace) -> int:
     )
 
     def ready(address: str) -> None:
+        from cc_daemon.cli.doctor.software import check_web
+
         guard = "with a password" if web.password_hash else "no password"
         print(
             f"cc-daemon web: http://{address}/ ({guard}; status from {sources.socket})",
             file=sys.stderr,
-            flush=True,
         )
+        for check in check_web(settings.model_copy(update={"web": web})):
+            if check.level != "OK":
+                print(f"cc-daemon web: WARNING: {check.detail}; {check.fix}", file=sys.stderr)
+        sys.stderr.flush()
 
     try:
         asyncio.run(serve(sources, web.listen, ready=ready))
