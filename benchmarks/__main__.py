@@ -13,7 +13,7 @@ import importlib.util
 import sys
 import traceback
 
-MODULES = ["parser", "journal", "daemon", "status_flood", "sonde", "winch", "flood"]
+MODULES = ["parser", "journal", "daemon", "status_flood", "sonde", "winch", "flood", "web"]
 
 
 def main() -> int:
