@@ -257,3 +257,24 @@ def test_the_wheel_ships_the_page(tmp_path: Path) -> None:
     names = zipfile.ZipFile(wheel).namelist()
     for asset in ("index.html", "page.css", "page.js"):
         assert f"cc_daemon/cli/web/static/{asset}" in names
+
+
+def test_a_bad_setting_exits_2_naming_the_key_and_a_busy_port_exits_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import socket as sockets
+
+    from cc_daemon.cli.app import main
+
+    config = tmp_path / "cc-daemon.toml"
+    config.write_text('[web]\nlisten = "8080"\n')
+    assert main(["web", "--config", str(config)]) == 2
+    assert "web.listen" in capsys.readouterr().err
+    with sockets.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        config.write_text(f'[web]\nlisten = "127.0.0.1:{port}"\n')
+        code = main(["web", "--config", str(config), "--db", str(tmp_path / "x.db")])
+    assert code == 1
+    assert f"web.listen = 127.0.0.1:{port}:" in capsys.readouterr().err.splitlines()[-1]

@@ -183,11 +183,13 @@ def split_listen(listen: str) -> tuple[str, int]:
 
 async def serve(sources: Sources, listen: str, *, ready: Callable[[str], None]) -> None:
     """Serve until cancelled. OSError if the address cannot be bound."""
-    runner = web.AppRunner(build_app(sources), access_log=None, handle_signals=False)
+    runner = web.AppRunner(
+        build_app(sources), access_log=None, handle_signals=False, shutdown_timeout=1.0
+    )
     await runner.setup()
     try:
         host, port = split_listen(listen)
-        site = web.TCPSite(runner, host, port, shutdown_timeout=1.0)
+        site = web.TCPSite(runner, host, port)
         await site.start()
         bound = runner.addresses[0]  # the real port when asked for port 0
         ready(f"{host if ':' not in host else f'[{host}]'}:{bound[1]}")
