@@ -278,3 +278,36 @@ def test_a_bad_setting_exits_2_naming_the_key_and_a_busy_port_exits_1(
         code = main(["web", "--config", str(config), "--db", str(tmp_path / "x.db")])
     assert code == 1
     assert f"web.listen = 127.0.0.1:{port}:" in capsys.readouterr().err.splitlines()[-1]
+
+
+async def test_journal_work_waits_its_turn_and_never_delays_the_status(
+    client: TestClient[Any, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import asyncio
+    import threading
+    import time
+
+    from cc_daemon.cli.web import journaldata, server
+
+    running, most = 0, 0
+    lock = threading.Lock()
+
+    def slow_surveys(path: Path) -> dict[str, Any]:  # a journal on a slow SD card
+        nonlocal running, most
+        with lock:
+            running += 1
+            most = max(most, running)
+        time.sleep(0.5)
+        with lock:
+            running -= 1
+        return {"surveys": []}
+
+    monkeypatch.setattr(journaldata, "surveys", slow_surveys)
+    readers = [asyncio.ensure_future(client.get("/api/surveys")) for _ in range(8)]
+    await asyncio.sleep(0.05)
+    began = time.monotonic()
+    doc = await (await client.get("/api/status")).json()
+    assert doc["reachable"] and time.monotonic() - began < 0.4  # not behind the journal
+    answers = await asyncio.gather(*readers)
+    assert [r.status for r in answers] == [200] * 8
+    assert most == server.JOURNAL_AT_ONCE

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -27,6 +28,9 @@ from cc_daemon.store import StoreError
 
 STATUS_TIMEOUT_S = 1.0
 STATUS_SHARED_S = 0.5  # one socket read serves every client asking within this
+# Journal reads and downloads at once, at most: ten phones fetching NetCDF must not
+# take the Pi's cores (or its memory) from the daemon. The others wait their turn.
+JOURNAL_AT_ONCE = 2
 ASSETS = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/static/page.css": ("page.css", "text/css; charset=utf-8"),
@@ -62,13 +66,19 @@ class StatusCache:
         self._at = -1e9
         self._doc: dict[str, Any] = {}
         self._lock = asyncio.Lock()
+        # Its own thread: journal reads filling the default pool never delay the status.
+        self._thread = ThreadPoolExecutor(1, thread_name_prefix="status-read")
 
     async def get(self) -> dict[str, Any]:
         async with self._lock:
             if time.monotonic() - self._at >= STATUS_SHARED_S:
-                self._doc = await asyncio.to_thread(self._read)
+                loop = asyncio.get_running_loop()
+                self._doc = await loop.run_in_executor(self._thread, self._read)
                 self._at = time.monotonic()
             return self._doc
+
+    def close(self) -> None:
+        self._thread.shutdown(wait=False)
 
     def _read(self) -> dict[str, Any]:
         try:
@@ -89,9 +99,10 @@ def _int(request: web.Request, name: str) -> int:
         raise web.HTTPNotFound() from None
 
 
-async def _journal(call: Callable[..., Any], *args: Any) -> web.Response:
+async def _journal(gate: asyncio.Semaphore, call: Callable[..., Any], *args: Any) -> web.Response:
     try:
-        body = await asyncio.to_thread(call, *args)
+        async with gate:
+            body = await asyncio.to_thread(call, *args)
     except journaldata.NotFound as exc:
         return _json_error(404, str(exc))
     except StoreError as exc:
@@ -102,6 +113,7 @@ async def _journal(call: Callable[..., Any], *args: Any) -> web.Response:
 def build_app(sources: Sources) -> web.Application:
     auth = BasicAuth(sources.password_hash) if sources.password_hash else None
     status = StatusCache(sources.socket)
+    gate = asyncio.Semaphore(JOURNAL_AT_ONCE)
     pages = {path: (asset(name), kind) for path, (name, kind) in ASSETS.items()}
 
     @web.middleware
@@ -129,25 +141,26 @@ def build_app(sources: Sources) -> web.Application:
         return web.json_response(await status.get())
 
     async def api_surveys(request: web.Request) -> web.Response:
-        return await _journal(journaldata.surveys, sources.journal)
+        return await _journal(gate, journaldata.surveys, sources.journal)
 
     async def api_casts(request: web.Request) -> web.Response:
-        return await _journal(journaldata.survey_casts, sources.journal, _int(request, "n"))
+        return await _journal(gate, journaldata.survey_casts, sources.journal, _int(request, "n"))
 
     async def api_profile(request: web.Request) -> web.Response:
-        return await _journal(journaldata.cast_profile, sources.journal, _int(request, "n"))
+        return await _journal(gate, journaldata.cast_profile, sources.journal, _int(request, "n"))
 
     async def api_events(request: web.Request) -> web.Response:
         text = request.query.get("survey")
         if text is not None and not text.isdigit():
             return _json_error(400, f"survey={text!r}: a survey's number, e.g. survey=3")
         survey = None if text is None else int(text)
-        return await _journal(journaldata.events, sources.journal, survey)
+        return await _journal(gate, journaldata.events, sources.journal, survey)
 
     async def download(request: web.Request) -> web.Response:
         n, fmt = _int(request, "n"), request.match_info["fmt"]
         try:
-            body = await asyncio.to_thread(downloads.survey_file, sources.journal, n, fmt)
+            async with gate:
+                body = await asyncio.to_thread(downloads.survey_file, sources.journal, n, fmt)
         except journaldata.NotFound as exc:
             return _json_error(404, str(exc))
         except OptionalDependencyError as exc:
@@ -164,7 +177,11 @@ def build_app(sources: Sources) -> web.Application:
             },
         )
 
+    async def stop_status(app: web.Application) -> None:
+        status.close()
+
     app = web.Application(middlewares=[guard])
+    app.on_cleanup.append(stop_status)
     for path in pages:
         app.router.add_get(path, page)
     app.router.add_get("/api/status", api_status)
