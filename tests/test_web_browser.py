@@ -30,6 +30,7 @@ def _env(**extra: str) -> dict[str, str]:
 
 
 def _until(what: str, check: Callable[[], Any], timeout: float = 20.0) -> Any:
+    """Poll `check` every 0.1 s until it is true-ish; its value."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         found = check()
@@ -39,9 +40,22 @@ def _until(what: str, check: Callable[[], Any], timeout: float = 20.0) -> Any:
     raise AssertionError(f"not within {timeout:g} s: {what}")
 
 
-def _status(url: str) -> dict[str, Any]:
-    with urllib.request.urlopen(url + "api/status", timeout=5) as answer:
+SIMULATE = [sys.executable, "-m", "cc_daemon", "--simulate", "--stations", "3", "--plain"]
+BANNER = "return $('#banner').hidden ? '' : $('#banner').textContent"
+LIVE_POINTS = "const l = $('#live-chart-line'); return l ? l.points.length : 0"
+SURVEY_ROWS = "return document.querySelectorAll('#surveys tbody tr[data-survey]').length"
+PROFILE_TITLE = "return $('#profile-title').textContent"
+PROFILE_LINES = "return document.querySelectorAll('#profile polyline').length"
+
+
+def _get_json(url: str) -> dict[str, Any]:
+    with urllib.request.urlopen(url, timeout=5) as answer:
         doc: dict[str, Any] = json.load(answer)
+    return doc
+
+
+def _status(url: str) -> dict[str, Any]:
+    doc = _get_json(url + "api/status")
     return doc if doc["reachable"] else {"counters": {"casts_completed": 0}}
 
 
@@ -75,12 +89,26 @@ def test_the_page_follows_a_simulated_survey_at_a_phones_width(
     web: tuple[str, Path, Path], tmp_path: Path
 ) -> None:
     url, sock, db = web
-    sim = subprocess.Popen(
-        [sys.executable, "-m", "cc_daemon", "--simulate", "--stations", "3", "--plain",
-         "--db", str(db)],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        env=_env(CC_DAEMON_STATUS__PATH=str(sock)), cwd=tmp_path,
-    )  # fmt: skip
+    sims: list[subprocess.Popen[bytes]] = []
+
+    def simulate(*extra: str) -> subprocess.Popen[bytes]:
+        sims.append(
+            subprocess.Popen(
+                [*SIMULATE, "--db", str(db), *extra],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                env=_env(CC_DAEMON_STATUS__PATH=str(sock)),
+                cwd=tmp_path,
+            )
+        )
+        return sims[-1]
+
+    def stop(sim: subprocess.Popen[bytes]) -> None:
+        sim.terminate()  # the daemon brings the probe home and exits
+        sim.wait(30)
+
+    sim = simulate()
     try:
         with browserkit.chromium() as browser:
             browser.get(url)
@@ -88,45 +116,48 @@ def test_the_page_follows_a_simulated_survey_at_a_phones_width(
             # Against the running daemon: it says, in words, that no probe moves.
             _until("SIMULATED shown", lambda: "SIMULATED" in js("return $('#mode').textContent"))
             # The live chart grows while a cast runs, without a reload.
-            points = "const l = $('#live-chart-line'); return l ? l.points.length : 0"
-            first = _until("a cast on the live chart", lambda: js(points))
-            _until("the chart advancing", lambda: js(points) >= first + 2, timeout=10)
+            first = _until("a cast on the live chart", lambda: js(LIVE_POINTS))
+            _until("the chart advancing", lambda: js(LIVE_POINTS) >= first + 2, timeout=10)
             assert js("return $('#live-caption').textContent").startswith("Cast ")
             _until("a cast completed", lambda: _status(url)["counters"]["casts_completed"], 40)
-            sim.terminate()
-            sim.wait(30)
+            stop(sim)
             # The daemon gone: said at the top, not hidden.
-            _until(
-                "the unreachable banner",
-                lambda: (
-                    "does not answer"
-                    in js("return $('#banner').hidden ? '' : $('#banner').textContent")
-                ),
-            )
-            # A winch fault in the status document: a banner nobody can miss.
+            _until("the unreachable banner", lambda: "does not answer" in js(BANNER))
+            # A fault injected in the simulation (the winch stalls): the banner, while
+            # it lasts (about 2 s per stalled cast), on a second survey in the journal.
+            stall = simulate("--winch-stall")
+            _until("the stall's banner", lambda: "winch.fault: stall at" in js(BANNER), 40)
+            stop(stall)
+            # Any fault key in the status document, and sections no version of the
+            # page knows, are shown too.
             doc = webkit.status(winch={"fault": "stalled at 2.5 m: probe stranded"})
             with browserkit.status_socket(sock, doc):
-                banner = "return $('#banner').hidden ? '' : $('#banner').textContent"
-                _until("the fault banner", lambda: "winch.fault: stalled at 2.5 m" in js(banner))
+                _until("the fault banner", lambda: "winch.fault: stalled at 2.5 m" in js(BANNER))
                 assert "tide_gauge" in js("return $('#sections').textContent")
-                # Today: the survey's cast profile, drawn from the journal.
+                # Today: the first survey's last cast, its profile drawn from the journal.
                 browser.get(url)
+                _until("the surveys listed", lambda: js(SURVEY_ROWS) == 2)
+                js("document.querySelector('#surveys tr[data-survey=\"1\"]').click()")
+                casts = _get_json(url + "api/surveys/1/casts")["casts"]
+                cast = [c["id"] for c in casts if c["outcome"] == "completed"][-1]
                 _until(
-                    "a profile drawn",
-                    lambda: js("return document.querySelectorAll('#profile polyline').length") >= 3,
+                    "the profile drawn",
+                    lambda: (
+                        js(PROFILE_TITLE).startswith(f"Profile of cast {cast}:")
+                        and js(PROFILE_LINES) >= 3
+                    ),
                 )
-                assert js("return $('#profile-title').textContent").startswith("Profile of cast")
                 assert js("return document.querySelectorAll('#map circle.station').length") >= 1
                 # A phone's width: nothing wider than the screen, no text over text.
                 assert js("return document.documentElement.scrollWidth") <= 390
                 assert js(browserkit.OVERLAPS_JS) == []
+                browser.save_screenshot(str(tmp_path / "phone.png"))
                 # ...and the check sees text laid over text when there is some.
                 js(
                     "const s = document.createElement('span'); s.textContent = 'OVER';"
                     "s.style = 'position:absolute;top:8px;left:14px'; document.body.append(s)"
                 )
                 assert js(browserkit.OVERLAPS_JS)
-                browser.save_screenshot(str(tmp_path / "phone.png"))
                 links = js("return [...document.querySelectorAll('#downloads a')].map(a => a.href)")
         assert [link.rsplit(".", 1)[1] for link in links] == ["csv", "geojson", "nc"]
         for link in links[:2]:
@@ -134,6 +165,7 @@ def test_the_page_follows_a_simulated_survey_at_a_phones_width(
                 assert answer.status == 200 and len(answer.read()) > 100
         assert (tmp_path / "phone.png").stat().st_size > 10_000
     finally:
-        if sim.poll() is None:
-            sim.kill()
-            sim.wait(10)
+        for sim in sims:
+            if sim.poll() is None:
+                sim.kill()
+                sim.wait(10)

@@ -5,7 +5,7 @@ const $ = (sel) => document.querySelector(sel);
 const NS = "http://www.w3.org/2000/svg";
 const POLL_MS = 1000;
 const live = { cast: null, points: [] };  // the running cast's [wall s, depth m]
-let chosenSurvey = null;
+let chosenSurvey = null, chosenCast = null;  // a late answer for an earlier choice is dropped
 
 function el(tag, attrs, text) {
   const node = tag.startsWith("svg:") ? document.createElementNS(NS, tag.slice(4))
@@ -182,6 +182,7 @@ async function chooseSurvey(id) {
   }
   try {
     const data = await getJSON(`/api/surveys/${id}/casts`);
+    if (chosenSurvey !== id) return;
     drawMap(data);
     $("#casts tbody").replaceChildren(...data.casts.map((c) => {
       const tr = row([c.id, utc(c.start_wall_s), c.outcome || "running", c.planned_depth_m, c.reached_depth_m]);
@@ -194,6 +195,7 @@ async function chooseSurvey(id) {
   } catch (e) { $("#map-title").textContent = "Stations: " + e.message; }
   try {
     const ev = await getJSON(`/api/events?survey=${id}`);
+    if (chosenSurvey !== id) return;
     $("#events").replaceChildren(...ev.events.slice(-200).reverse().map((e) =>
       el("li", {}, `${utc(e.wall_s).slice(11)} ${e.kind} ${Object.keys(e.detail).length ? show(e.detail) : ""}`)));
   } catch (e) { $("#events").replaceChildren(el("li", {}, e.message)); }
@@ -223,13 +225,15 @@ function drawMap(data) {
 }
 
 async function chooseCast(id) {
+  chosenCast = id;
   for (const tr of document.querySelectorAll("#casts tbody tr")) {
     tr.className = Number(tr.dataset.cast) === id ? "chosen" : "";
   }
   const box = $("#profile");
   let p;
   try { p = await getJSON(`/api/casts/${id}/profile`); }
-  catch (e) { box.replaceChildren(el("p", {}, e.message)); return; }
+  catch (e) { if (chosenCast === id) box.replaceChildren(el("p", {}, e.message)); return; }
+  if (chosenCast !== id) return;
   $("#profile-title").textContent = `Profile of cast ${id}: ${p.samples.length} depth samples, `
     + `${p.sonde.length} sonde readings`;
   const plots = [];
