@@ -21,7 +21,8 @@ import pytest
 from tests import browserkit, webkit
 from tests.daemonkit import REPO
 
-pytestmark = pytest.mark.slow
+# A simulated survey, a stalled one and a browser: slow under a loaded full suite.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
 
 def _env(**extra: str) -> dict[str, str]:
