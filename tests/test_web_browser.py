@@ -131,10 +131,14 @@ def test_the_page_follows_a_simulated_survey_at_a_phones_width(
             stop(stall)
             # Any fault key in the status document, and sections no version of the
             # page knows, are shown too.
-            doc = webkit.status(winch={"fault": "stalled at 2.5 m: probe stranded"})
+            doc = webkit.status(
+                winch={"fault": "stalled at 2.5 m: probe stranded"},
+                counters={"faults_total": 3},  # a count of faults past: no banner
+            )
             with browserkit.status_socket(sock, doc):
                 _until("the fault banner", lambda: "winch.fault: stalled at 2.5 m" in js(BANNER))
                 assert "tide_gauge" in js("return $('#sections').textContent")
+                assert "faults_total" not in js(BANNER)
                 # Today: the first survey's last cast, its profile drawn from the journal.
                 browser.get(url)
                 _until("the surveys listed", lambda: js(SURVEY_ROWS) == 2)

@@ -42,7 +42,11 @@ function alarms(doc, path, out) {
   for (const [k, v] of Object.entries(doc || {})) {
     const where = path ? path + "." + k : k;
     if (v && typeof v === "object" && !Array.isArray(v)) alarms(v, where, out);
-    else if (/fault|stranded|^error$|last_error/.test(k) && v) out.push(where + ": " + show(v));
+    // A text or `true`: a fault said, or a probe stranded. A number is a count of
+    // faults past (faults_total: 3), which must not cry wolf for ever.
+    else if (/fault|stranded|^error$|last_error/.test(k) && (v === true || typeof v === "string") && v) {
+      out.push(where + ": " + show(v));
+    }
   }
   return out;
 }
