@@ -311,3 +311,29 @@ async def test_journal_work_waits_its_turn_and_never_delays_the_status(
     answers = await asyncio.gather(*readers)
     assert [r.status for r in answers] == [200] * 8
     assert most == server.JOURNAL_AT_ONCE
+
+
+async def test_latest_is_the_sondes_last_reading_with_its_age(
+    client: TestClient[Any, Any], journal: Path, tmp_path: Path
+) -> None:
+    with JournalReader(journal) as reader:
+        last = reader.sonde_samples()[-1]
+    body = await (await client.get("/api/latest")).json()
+    assert body["survey"] == 2
+    sonde = body["sonde"]
+    assert sonde["values"]["temperature"] == last.values["temperature"] == 24.0 - 3.5
+    assert sonde["depth_m"] == last.sonde_depth_m and sonde["status"] == "ok"
+    assert sonde["age_s"] > 0  # the synthetic survey is years old: said, not hidden
+    # A journal with no sonde: null, not an error.
+    from cc_daemon.store import Journal
+    from cc_daemon.store.synthetic import FakeClock, write_survey
+
+    bare = tmp_path / "bare.db"
+    clock = FakeClock()
+    plain = Journal(bare, monotonic=clock.monotonic, wall=clock.wall)
+    plain.open()
+    write_survey(plain, clock, duration_s=60)
+    plain.close()
+    from cc_daemon.cli.web import journaldata
+
+    assert journaldata.latest(bare, clock.wall())["sonde"] is None

@@ -42,6 +42,7 @@ def _until(what: str, check: Callable[[], Any], timeout: float = 20.0) -> Any:
 
 
 SIMULATE = [sys.executable, "-m", "cc_daemon", "--simulate", "--stations", "3", "--plain"]
+SUMMARY = "return $('#summary').textContent"
 BANNER = "return $('#banner').hidden ? '' : $('#banner').textContent"
 LIVE_POINTS = "const l = $('#live-chart-line'); return l ? l.points.length : 0"
 SURVEY_ROWS = "return document.querySelectorAll('#surveys tbody tr[data-survey]').length"
@@ -121,6 +122,8 @@ def test_the_page_follows_a_simulated_survey_at_a_phones_width(
             _until("the chart advancing", lambda: js(LIVE_POINTS) >= first + 2, timeout=10)
             assert js("return $('#live-caption').textContent").startswith("Cast ")
             _until("a cast completed", lambda: _status(url)["counters"]["casts_completed"], 40)
+            # The sonde's last reading, from the journal (every 5 s).
+            _until("the sonde's card", lambda: "Sonde (last reading)" in js(SUMMARY), 10)
             stop(sim)
             # The daemon gone: said at the top, not hidden.
             _until("the unreachable banner", lambda: "does not answer" in js(BANNER))

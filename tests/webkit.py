@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import time
 from pathlib import Path
 from typing import Any
 
@@ -45,12 +46,18 @@ def make_journal(db: Path) -> Path:
         journal = Journal(db, monotonic=clock.monotonic, wall=clock.wall)
         journal.open()
         write_survey(journal, clock, duration_s=minutes * 60, cast_every_s=600)
+        if minutes == 30:
+            _sonde_readings(journal, db)  # in the survey's own session, as the daemon does
         journal.close()
         clock.advance(3600)
+    return db
+
+
+def _sonde_readings(journal: Journal, db: Path) -> None:
+    while journal.health().pending_rows:  # the writer thread has the casts on disk
+        time.sleep(0.01)
     with JournalReader(db) as reader:
         cast = [c for c in reader.casts() if c.outcome == "completed"][-1]
-    journal = Journal(db, monotonic=clock.monotonic, wall=clock.wall)
-    journal.open()
     for i in range(8):
         depth = i * 0.5
         values: dict[str, float | None] = {p.name: None for p in DEFAULT_PARAMETERS}
@@ -60,5 +67,3 @@ def make_journal(db: Path) -> Path:
             wall_s=cast.start_wall_s + i, duration_s=0.08, status="ok", error=None,
             line_out_m=depth, sonde_depth_m=depth, values=values, missing={}, simulated=True,
         )  # fmt: skip
-    journal.close()
-    return db

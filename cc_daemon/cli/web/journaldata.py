@@ -104,3 +104,30 @@ def events(path: Path, survey: int | None) -> dict[str, Any]:
             _choose(reader, survey)
         rows = reader.events()
     return {"survey": survey, "events": [_clean(e._asdict()) for e in rows]}
+
+
+LATEST_WINDOW_S = 600.0  # the sonde's last reading is looked for in the survey's last 10 min
+
+
+def latest(path: Path, now_wall_s: float) -> dict[str, Any]:
+    """The sonde's last reading of the latest survey, with its age (None: none)."""
+    with _open(path) as reader:
+        survey = reader.select_survey("latest")
+        if survey is None:
+            return {"survey": None, "sonde": None}
+        found = reader.sonde_samples(since=survey.end_wall_s - LATEST_WINDOW_S)
+    if not found:
+        return {"survey": survey.id, "sonde": None}
+    last = found[-1]
+    reading = {
+        "wall_s": last.wall_s,
+        "age_s": round(now_wall_s - last.wall_s, 1),
+        "status": last.status,
+        "error": last.error,
+        "depth_m": last.sonde_depth_m,
+        "line_out_m": last.line_out_m,
+        "cast_id": last.cast_id,
+        "simulated": last.simulated,
+        "values": last.values,
+    }
+    return {"survey": survey.id, "sonde": _clean(reading)}

@@ -149,6 +149,9 @@ def build_app(sources: Sources) -> web.Application:
     async def api_profile(request: web.Request) -> web.Response:
         return await _journal(gate, journaldata.cast_profile, sources.journal, _int(request, "n"))
 
+    async def api_latest(request: web.Request) -> web.Response:
+        return await _journal(gate, journaldata.latest, sources.journal, time.time())
+
     async def api_events(request: web.Request) -> web.Response:
         text = request.query.get("survey")
         if text is not None and not text.isdigit():
@@ -189,6 +192,7 @@ def build_app(sources: Sources) -> web.Application:
     app.router.add_get("/api/surveys/{n}/casts", api_casts)
     app.router.add_get("/api/casts/{n}/profile", api_profile)
     app.router.add_get("/api/events", api_events)
+    app.router.add_get("/api/latest", api_latest)
     app.router.add_get(r"/download/survey/{n}.{fmt:csv|geojson|nc}", download)
     return app
 

@@ -5,6 +5,7 @@ const $ = (sel) => document.querySelector(sel);
 const NS = "http://www.w3.org/2000/svg";
 const POLL_MS = 1000;
 const live = { cast: null, points: [] };  // the running cast's [wall s, depth m]
+let latestSonde = null;  // a card: the sonde's last reading, from the journal
 let chosenSurvey = null, chosenCast = null;  // a late answer for an earlier choice is dropped
 
 function el(tag, attrs, text) {
@@ -95,6 +96,7 @@ function renderStatus(doc) {
     if (doc[name] && typeof doc[name] === "object") summary.push(card(name[0].toUpperCase() + name.slice(1),
       Object.entries(doc[name])));
   }
+  if (latestSonde) summary.push(latestSonde);
   $("#summary").replaceChildren(...summary);
   const all = [];
   for (const [name, section] of Object.entries(doc)) {
@@ -270,7 +272,21 @@ function profilePlot(name, pts) {
   return fig;
 }
 
+// The sonde's last reading is in the journal, not the status: every 5 s is enough.
+async function pollSonde() {
+  try {
+    const s = (await getJSON("/api/latest")).sonde;
+    if (!s) { latestSonde = null; return; }
+    const rows = [["age s", s.age_s], ["status", s.status], ["depth m", s.depth_m]];
+    for (const [k, v] of Object.entries(s.values || {})) if (v !== null && k !== "depth") rows.push([k, v]);
+    if (s.error) rows.push(["error", s.error]);
+    latestSonde = card("Sonde (last reading)", rows, s.status !== "ok");
+  } catch (e) { latestSonde = null; }
+}
+
 poll();
 setInterval(poll, POLL_MS);
+pollSonde();
+setInterval(pollSonde, 5000);
 loadSurveys();
 setInterval(loadSurveys, 30000);
