@@ -32,7 +32,7 @@ from cc_daemon.store.synthetic import FakeClock, write_survey
 
 CLIENTS = 10
 PHASE_S = 10.0
-FIRST_LOAD = ["", "static/page.css", "static/page.js", "api/status", "api/surveys"]
+FIRST_LOAD = ["", "static/page.css", "static/page.js", "api/status", "api/latest", "api/surveys"]
 
 
 def get(url: str) -> bytes:
