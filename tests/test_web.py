@@ -292,7 +292,7 @@ async def test_journal_work_waits_its_turn_and_never_delays_the_status(
     running, most = 0, 0
     lock = threading.Lock()
 
-    def slow_surveys(path: Path) -> dict[str, Any]:  # a journal on a slow SD card
+    def slow_events(path: Path, survey: int | None) -> dict[str, Any]:  # a slow SD card
         nonlocal running, most
         with lock:
             running += 1
@@ -300,10 +300,10 @@ async def test_journal_work_waits_its_turn_and_never_delays_the_status(
         time.sleep(0.5)
         with lock:
             running -= 1
-        return {"surveys": []}
+        return {"events": []}
 
-    monkeypatch.setattr(journaldata, "surveys", slow_surveys)
-    readers = [asyncio.ensure_future(client.get("/api/surveys")) for _ in range(8)]
+    monkeypatch.setattr(journaldata, "events", slow_events)
+    readers = [asyncio.ensure_future(client.get("/api/events")) for _ in range(8)]
     await asyncio.sleep(0.05)
     began = time.monotonic()
     doc = await (await client.get("/api/status")).json()
@@ -337,3 +337,31 @@ async def test_latest_is_the_sondes_last_reading_with_its_age(
     from cc_daemon.cli.web import journaldata
 
     assert journaldata.latest(bare, clock.wall())["sonde"] is None
+
+
+async def test_what_pages_ask_on_a_timer_is_read_once_for_all_of_them(
+    client: TestClient[Any, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import asyncio
+
+    from cc_daemon.cli.web import journaldata
+
+    calls: list[str] = []
+    real_latest, real_surveys = journaldata.latest, journaldata.surveys
+
+    def latest(path: Path, now: float) -> dict[str, Any]:
+        calls.append("latest")
+        return real_latest(path, now)
+
+    def surveys(path: Path) -> dict[str, Any]:
+        calls.append("surveys")
+        return real_surveys(path)
+
+    monkeypatch.setattr(journaldata, "latest", latest)
+    monkeypatch.setattr(journaldata, "surveys", surveys)
+    for _ in range(2):  # ten pages at once, then again a moment later
+        answers = await asyncio.gather(
+            *(client.get(path) for path in ["/api/latest", "/api/surveys"] * 5)
+        )
+        assert [r.status for r in answers] == [200] * 10
+    assert sorted(calls) == ["latest", "surveys"]

@@ -31,6 +31,9 @@ STATUS_SHARED_S = 0.5  # one socket read serves every client asking within this
 # Journal reads and downloads at once, at most: ten phones fetching NetCDF must not
 # take the Pi's cores (or its memory) from the daemon. The others wait their turn.
 JOURNAL_AT_ONCE = 2
+# What every open page asks on a timer is read once for all of them within this:
+# where the service's user cannot write beside the journal, each read copies it.
+JOURNAL_SHARED_S = {"latest": 4.5, "surveys": 10.0}
 ASSETS = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/static/page.css": ("page.css", "text/css; charset=utf-8"),
@@ -99,10 +102,34 @@ def _int(request: web.Request, name: str) -> int:
         raise web.HTTPNotFound() from None
 
 
-async def _journal(gate: asyncio.Semaphore, call: Callable[..., Any], *args: Any) -> web.Response:
-    try:
+class Shared:
+    """One journal answer per name shared by every client for JOURNAL_SHARED_S."""
+
+    def __init__(self) -> None:
+        self._kept: dict[str, tuple[float, Any]] = {}
+        self._locks: dict[str, asyncio.Lock] = {}
+
+    async def get(self, name: str, produce: Callable[[], Awaitable[Any]]) -> Any:
+        async with self._locks.setdefault(name, asyncio.Lock()):
+            kept = self._kept.get(name)
+            if kept is None or time.monotonic() - kept[0] >= JOURNAL_SHARED_S[name]:
+                kept = (time.monotonic(), await produce())
+                self._kept[name] = kept
+            return kept[1]
+
+
+async def _journal(
+    gate: asyncio.Semaphore,
+    call: Callable[..., Any],
+    *args: Any,
+    shared: tuple[Shared, str] | None = None,
+) -> web.Response:
+    async def produce() -> Any:
         async with gate:
-            body = await asyncio.to_thread(call, *args)
+            return await asyncio.to_thread(call, *args)
+
+    try:
+        body = await (shared[0].get(shared[1], produce) if shared else produce())
     except journaldata.NotFound as exc:
         return _json_error(404, str(exc))
     except StoreError as exc:
@@ -114,6 +141,7 @@ def build_app(sources: Sources) -> web.Application:
     auth = BasicAuth(sources.password_hash) if sources.password_hash else None
     status = StatusCache(sources.socket)
     gate = asyncio.Semaphore(JOURNAL_AT_ONCE)
+    shared = Shared()
     pages = {path: (asset(name), kind) for path, (name, kind) in ASSETS.items()}
 
     @web.middleware
@@ -141,7 +169,9 @@ def build_app(sources: Sources) -> web.Application:
         return web.json_response(await status.get())
 
     async def api_surveys(request: web.Request) -> web.Response:
-        return await _journal(gate, journaldata.surveys, sources.journal)
+        return await _journal(
+            gate, journaldata.surveys, sources.journal, shared=(shared, "surveys")
+        )
 
     async def api_casts(request: web.Request) -> web.Response:
         return await _journal(gate, journaldata.survey_casts, sources.journal, _int(request, "n"))
@@ -150,7 +180,9 @@ def build_app(sources: Sources) -> web.Application:
         return await _journal(gate, journaldata.cast_profile, sources.journal, _int(request, "n"))
 
     async def api_latest(request: web.Request) -> web.Response:
-        return await _journal(gate, journaldata.latest, sources.journal, time.time())
+        return await _journal(
+            gate, journaldata.latest, sources.journal, time.time(), shared=(shared, "latest")
+        )
 
     async def api_events(request: web.Request) -> web.Response:
         text = request.query.get("survey")
