@@ -12,7 +12,7 @@ EXTRAS_STAMP := $(VENV)/.installed-extras
 # The journal `make export` and `make plot` read: the simulator's, by default.
 DB ?= simulate.db
 
-.PHONY: unit-tools test lint typecheck imports pytest simulate extras export plot bench clean install uninstall
+.PHONY: unit-tools browser-tools test lint typecheck imports pytest simulate extras export plot bench clean install uninstall
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "cc-daemon needs Python >= 3.11; set PYTHON=python3.11")'
@@ -56,9 +56,17 @@ unit-tools:
 		{ apt-get update -qq && apt-get install -y -qq --no-install-recommends systemd >/dev/null; } ; } || \
 		echo "make: systemd-analyze not available and cannot be installed: the unit's checks will be skipped" >&2
 
+# The field page's tests drive Debian's headless Chromium through its chromedriver
+# (tests/test_web_browser.py). Installed where missing if we can (root, apt); else
+# those tests skip and say why.
+browser-tools:
+	@{ [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ]; } || { [ "$$(id -u)" -eq 0 ] && command -v apt-get >/dev/null && \
+		{ apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium chromium-driver >/dev/null; } ; } || \
+		echo "make: chromium and chromedriver not available and cannot be installed: the browser tests will be skipped" >&2
+
 # Four workers on two cores: the suite mostly waits on real timers (whole casts end
 # to end, 1 s depth reports), not on the CPU; measured 4 min 15 s against 5 min 57 s.
-pytest: $(TEST_STAMP) unit-tools
+pytest: $(TEST_STAMP) unit-tools browser-tools
 	$(BIN)/pytest -n 4 $(PYTEST_ARGS)
 
 simulate: $(EXTRAS_STAMP)

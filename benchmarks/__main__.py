@@ -23,6 +23,7 @@ MODULES = [
     "sonde",
     "winch",
     "flood",
+    "web",
 ]
 
 

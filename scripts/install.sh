@@ -113,6 +113,8 @@ install_files() {
         say "keeping $LINK (not ours); the program is $PREFIX/.venv/bin/cc-daemon"
     fi
     install -m 0644 "$SRC/systemd/cc-daemon.service" "$UNIT_DIR/cc-daemon.service"
+    # The field page (docs/web.md): installed, not enabled.
+    install -m 0644 "$SRC/systemd/cc-daemon-web.service" "$UNIT_DIR/cc-daemon-web.service"
     install -m 0644 "$SRC/systemd/99-cc-autopilot.rules" "$SHARE/udev/99-cc-autopilot.rules"
     install -m 0644 "$SRC/config/cc-daemon.toml" "$SHARE/cc-daemon.toml.default"
     install -m 0644 "$SRC"/docs/*.md "$SHARE/docs/"
@@ -147,6 +149,8 @@ cc-daemon is installed. Next steps:
   4. Start it, now and at boot:        sudo systemctl enable --now cc-daemon
   5. Watch it:                         journalctl -u cc-daemon -f
                                        cc-daemon status --watch
+  6. The field page, if wanted:        sudo systemctl enable --now cc-daemon-web
+                                       ([web] in the configuration; $PREFIX/share/docs/web.md)
 Upgrade later: git pull && sudo make install && sudo systemctl restart cc-daemon
 EOF
 }
@@ -154,9 +158,10 @@ EOF
 do_uninstall() {
     need_root uninstall
     if [[ -z "$DESTDIR" ]]; then
+        systemctl disable --now cc-daemon-web.service 2>/dev/null || true
         systemctl disable --now cc-daemon.service 2>/dev/null || true
     fi
-    rm -f "$UNIT_DIR/cc-daemon.service" "$SYSUSERS"
+    rm -f "$UNIT_DIR/cc-daemon.service" "$UNIT_DIR/cc-daemon-web.service" "$SYSUSERS"
     if [[ "$(readlink "$LINK" 2>/dev/null)" == "$PREFIX/.venv/bin/cc-daemon" ]]; then
         rm -f "$LINK"
     fi

@@ -334,3 +334,35 @@ async def test_a_sonde_without_pymodbus_is_a_fail(pi: Pi) -> None:
     pi.system = dataclasses.replace(pi.system, installed=lambda module: module != "pymodbus")
     checks = await pi.checks()
     assert checks["pymodbus"].level == "FAIL" and "sonde.backend" in checks["pymodbus"].detail
+
+
+@pytest.mark.parametrize(
+    ("web", "level"),
+    [
+        ('listen = "0.0.0.0:8080"', "WARN"),
+        ('listen = "[::]:8080"', "WARN"),
+        ('listen = "0.0.0.0:8080"\npassword_hash = "{hash}"', "OK"),
+        ('listen = "[::1]:8080"', None),
+        ('listen = "localhost:8080"', None),
+    ],
+)
+async def test_the_field_page_beyond_localhost_without_a_password_is_a_warning(
+    pi: Pi, web: str, level: str | None
+) -> None:
+    from cc_daemon.cli.web.auth import hash_password
+
+    config = pi.root / "etc/cc-daemon/cc-daemon.toml"
+    shipped = 'listen = "127.0.0.1:8080"'  # the [web] section of config/cc-daemon.toml
+    assert shipped in config.read_text()
+    config.write_text(
+        config.read_text().replace(shipped, web.replace("{hash}", hash_password("x")))
+    )
+    checks = await pi.checks()
+    assert checks["config"].level == "OK", checks["config"].detail
+    if level is None:
+        assert "field page" not in checks
+    else:
+        assert checks["field page"].level == level
+    if level == "WARN":
+        assert "no password" in checks["field page"].detail
+        assert "--hash-password" in checks["field page"].fix

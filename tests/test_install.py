@@ -61,6 +61,9 @@ def test_install_twice_then_uninstall(tmp_path: Path) -> None:
     assert (mode(unit), mode(config)) == ("0o644", "0o640")
     assert (dest / "opt/cc-daemon/share/udev/99-cc-autopilot.rules").is_file()
     assert (dest / "opt/cc-daemon/share/docs/deployment.md").is_file()
+    web_unit = dest / "etc/systemd/system/cc-daemon-web.service"  # the field page
+    assert web_unit.read_text() == (REPO / "systemd/cc-daemon-web.service").read_text()
+    assert (dest / "opt/cc-daemon/share/docs/web.md").is_file()
     # The user and the groups the unit names, written by systemd-sysusers.
     passwd = (dest / "etc/passwd").read_text()
     groups = {line.split(":")[0] for line in (dest / "etc/group").read_text().splitlines()}
@@ -95,7 +98,7 @@ def test_install_twice_then_uninstall(tmp_path: Path) -> None:
     data.write_bytes(b"survey")
     gone = make("uninstall", dest)
     assert gone.returncode == 0, gone.stdout + gone.stderr
-    assert not unit.exists() and not (dest / "opt/cc-daemon").exists()
+    assert not unit.exists() and not web_unit.exists() and not (dest / "opt/cc-daemon").exists()
     assert not link.is_symlink()
     assert not (dest / "etc/sysusers.d/cc-daemon.conf").exists()
     assert data.read_bytes() == b"survey"

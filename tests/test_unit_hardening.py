@@ -20,6 +20,8 @@ import pytest
 from tests.daemonkit import REPO
 
 UNIT = REPO / "systemd" / "cc-daemon.service"
+WEB_UNIT = REPO / "systemd" / "cc-daemon-web.service"  # the field page (docs/web.md)
+UNITS = pytest.mark.parametrize("unit", [UNIT, WEB_UNIT], ids=lambda u: u.stem)
 MAX_EXPOSURE = 2.0
 ANALYZE = shutil.which("systemd-analyze")
 needs_analyze = pytest.mark.skipif(
@@ -53,8 +55,9 @@ def exposure(unit: Path) -> float:
 
 
 @needs_analyze
-def test_exposure_is_at_most_two() -> None:
-    assert exposure(UNIT) <= MAX_EXPOSURE
+@UNITS
+def test_exposure_is_at_most_two(unit: Path) -> None:
+    assert exposure(unit) <= MAX_EXPOSURE
 
 
 @needs_analyze
@@ -71,14 +74,15 @@ def test_the_measure_would_catch_a_weakened_unit(tmp_path: Path) -> None:
 
 
 @needs_analyze
-def test_verify_is_clean(tmp_path: Path) -> None:
+@UNITS
+def test_verify_is_clean(unit: Path, tmp_path: Path) -> None:
     # verify also insists that ExecStart= exists; the installed venv is not on this
     # machine, so point it at this checkout's own entry point and check the rest.
     entry = Path(sys.executable).with_name("cc-daemon")
     assert entry.exists(), entry
-    text = UNIT.read_text().replace("/opt/cc-daemon/.venv/bin/cc-daemon", str(entry))
+    text = unit.read_text().replace("/opt/cc-daemon/.venv/bin/cc-daemon", str(entry))
     assert str(entry) in text
-    copy = tmp_path / "cc-daemon.service"
+    copy = tmp_path / unit.name
     copy.write_text(text)
     result = subprocess.run(
         [ANALYZE, "verify", str(copy)], capture_output=True, text=True, check=False
@@ -137,3 +141,15 @@ def test_stop_budget_brings_the_probe_home_from_the_end_of_the_line() -> None:
     haul_s = winch["max_line_m"] / speed
     budget = float(unit_settings(UNIT.read_text())["TimeoutStopSec"][-1])
     assert budget >= haul_s + 30  # + stopping a descent, journal and close
+
+
+def test_the_web_unit_reads_and_never_writes_the_daemons_files() -> None:
+    s = unit_settings(WEB_UNIT.read_text())
+    assert s["ExecStart"] == [
+        "/opt/cc-daemon/.venv/bin/cc-daemon web --config /etc/cc-daemon/cc-daemon.toml"
+    ]
+    assert s["DynamicUser"] == ["yes"] and s["SupplementaryGroups"] == ["cc-daemon"]
+    assert s["ProtectSystem"] == ["strict"]  # no ReadWritePaths: it writes nothing
+    assert not {"ReadWritePaths", "StateDirectory", "RuntimeDirectory"} & set(s)
+    assert s["RestrictAddressFamilies"] == ["AF_UNIX AF_INET AF_INET6"]
+    assert s["RestartPreventExitStatus"] == ["2"]

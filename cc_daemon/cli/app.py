@@ -13,6 +13,7 @@
     cc-daemon winch status|home|down|up      the GPIO winch by hand (jog, home, calibrate)
     cc-daemon release --reason TEXT          release a stranded station (probe seen on board)
     cc-daemon simulate-sonar --port P        the simulated Ping1D echosounder alone
+    cc-daemon web                            the field page: status and data in a browser
 
 Exit status: 0 success; 1 a tool found problems (corrupt frames, a protocol
 violation); 2 bad usage or configuration (nothing was opened); 3 a simulated
@@ -176,6 +177,7 @@ _COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("winch",), "cc_daemon.cli.winch", "add_command"),
     (("release",), "cc_daemon.cli.release", "add_command"),
     (("recover",), "cc_daemon.cli.recover", "add_command"),
+    (("web",), "cc_daemon.cli.web.command", "add_command"),
     (("simulate-sonar",), "cc_daemon.sim.sonar_cli", "add_commands"),
 )
 _HELP = ("-h", "--help")

@@ -7,6 +7,7 @@ only `loading.load_settings` looks at files and the environment.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -320,6 +321,41 @@ class StatusSettings(BaseModel):
     client_timeout_s: Annotated[float, Field(ge=0.1, le=60.0)] = 2.0
 
 
+def _check_listen(value: str) -> str:
+    """`host:port` (an IPv6 host in brackets): what the page's server binds."""
+    host, sep, port = value.strip().rpartition(":")
+    if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError('must be "host:port", e.g. "127.0.0.1:8080" or "0.0.0.0:8080"')
+    if host.startswith("[") != host.endswith("]"):
+        raise ValueError('an IPv6 host goes in brackets: "[::1]:8080"')
+    return value.strip()
+
+
+# What `cc-daemon web --hash-password` prints: scrypt$N$r$p$salt$hash (base64).
+_PASSWORD_HASH = re.compile(r"scrypt\$\d+\$\d+\$\d+\$[A-Za-z0-9+/=]{16,}\$[A-Za-z0-9+/=]{43,}")
+
+
+def _check_password_hash(value: str | None) -> str | None:
+    if value is not None and not _PASSWORD_HASH.fullmatch(value):
+        raise ValueError(
+            "must be what `cc-daemon web --hash-password` prints (scrypt$...), never the "
+            "password itself"
+        )
+    return value
+
+
+class WebSettings(BaseModel):
+    """[web]: the field page, `cc-daemon web` (a separate, read-only process)."""
+
+    model_config = _SECTION
+
+    listen: Annotated[str, AfterValidator(_check_listen)] = "127.0.0.1:8080"
+    # None: no password (fine on 127.0.0.1; `doctor` warns beyond it).
+    password_hash: Annotated[
+        str | None, BeforeValidator(_empty_is_none), AfterValidator(_check_password_hash)
+    ] = None
+
+
 class SonarSettings(BaseModel):
     """[sonar]: a Ping1D echosounder wired to the companion computer (off without a port)."""
 
@@ -370,6 +406,7 @@ class Settings(BaseModel):
     status: StatusSettings = StatusSettings()
     sonde: SondeSettings = SondeSettings()
     sonar: SonarSettings = SonarSettings()
+    web: WebSettings = WebSettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
     # What load_settings merged and where each value came from, so a check made

@@ -4,12 +4,14 @@ and does the winch that answers the autopilot move a real probe?
 A check per piece the configuration in force needs: lgpio for the GPIO winch on
 the Pi's pins, pymodbus for a sonde, brping for the sonar, matplotlib and
 netCDF4 for `plot` and `export --format netcdf` (a WARN: the service runs
-without them). Libraries are looked up, never imported, so the doctor stays
+without them); and a WARN when the field page listens beyond this Pi without a
+password. Libraries are looked up, never imported, so the doctor stays
 quick and a broken library cannot take it down.
 """
 
 from __future__ import annotations
 
+import ipaddress
 from collections.abc import Callable, Iterator
 
 from cc_daemon.cli.doctor.verdict import Check
@@ -65,6 +67,34 @@ def check_software(settings: Settings, found: Callable[[str], bool]) -> Iterator
         )
     else:
         yield Check("plots and NetCDF", "OK", "matplotlib and netCDF4 installed")
+    yield from check_web(settings)
+
+
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+def check_web(settings: Settings) -> Iterator[Check]:
+    """The field page beyond this Pi: said, and a WARN without a password. Nothing
+    to say when it listens on localhost (the default)."""
+    listen = settings.web.listen
+    host = listen.rpartition(":")[0]
+    if _loopback(host):
+        return
+    if settings.web.password_hash:
+        yield Check("field page", "OK", f"web.listen = {listen}, with a password")
+        return
+    yield Check(
+        "field page",
+        "WARN",
+        f"web.listen = {listen} reaches beyond this Pi with no password: anyone on the "
+        "boat's network can read the page and download the surveys",
+        "cc-daemon web --hash-password, then put the line it prints under [web], "
+        'or web.listen = "127.0.0.1:8080"',
+    )
 
 
 def _library(module: str, found: Callable[[str], bool], because: str) -> Check:
