@@ -138,7 +138,8 @@ async def test_current_and_supply_are_read_through_the_mcp3008() -> None:
 
 
 async def test_haul_home_gives_up_when_the_switch_never_closes() -> None:
-    async with gpio_rig() as rig:
+    # A tolerance wider than the haul: the deadline, not the witnesses, ends it.
+    async with gpio_rig(count_tolerance_m=5.0) as rig:
         rig.winch.move_to(0.6)
         await rig.settle()
         rig.drum.faults.switch_stuck_open = True  # the drum winds on past the block
@@ -164,7 +165,10 @@ async def test_the_switch_closing_while_paying_out_stops_and_faults() -> None:
 
 
 async def test_lost_pulses_are_corrected_at_the_switch_with_both_figures() -> None:
-    async with gpio_rig(faults=DrumFaults(lose_every=4), count_tolerance_m=0.2) as rig:
+    # Drift within count_tolerance_m is corrected at a believed switch; beyond it the
+    # witnesses disagree (tests/test_gpio_witnesses.py). This test used to pin the old
+    # rule "the switch always zeroes the count", the very bug of the two-witness issue.
+    async with gpio_rig(faults=DrumFaults(lose_every=4), count_tolerance_m=1.5) as rig:
         rig.winch.move_to(3.0)
         await rig.settle()
         real = rig.drum.line_m
@@ -176,11 +180,11 @@ async def test_lost_pulses_are_corrected_at_the_switch_with_both_figures() -> No
         # Hauling in, the count reaches home first: it says so, and hauls on.
         early = next(e for e in logs if "disagree" in e["event"] and e["switch"] == "open")
         assert early["counted_line_m"] <= 0.0
-        warning = next(e for e in logs if "disagree" in e["event"] and e["switch"] == "closed")
-        assert warning["counted_line_m"] < -0.2  # the pulses lost on the way down
-        corrected = dict(rig.events)["winch_count_corrected"]
-        assert corrected["counted_line_m"] == warning["counted_line_m"]
-        assert corrected["corrected_to_m"] == 0.0
+        corrected = next(e for e in logs if "count corrected" in e["event"])
+        assert corrected["switch"] == "closed" and corrected["counted_line_m"] < -0.2
+        recorded = dict(rig.events)["winch_count_corrected"]
+        assert recorded["counted_line_m"] == corrected["counted_line_m"]
+        assert recorded["corrected_to_m"] == 0.0
 
 
 async def test_start_up_homing_hauls_a_probe_left_down() -> None:

@@ -108,6 +108,8 @@ class WinchGpioSettings(BaseModel):
     switch_pull: _Pull = "none"
     switch_active: _Level = "high"
     switch_debounce_s: Annotated[float, Field(ge=0, le=1)] = 0.002
+    # Home needs the switch closed this long as well as the count near zero.
+    switch_settle_s: Annotated[float, Field(ge=0.01, le=2)] = 0.2
     counter: Literal["pulse", "quadrature"] = "pulse"
     pulse_pin: _Bcm = 27
     encoder_b_pin: _Bcm = 22

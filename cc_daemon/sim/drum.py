@@ -125,6 +125,7 @@ class DrumFaults:
     jam_in_at_m: float | None = None  # ... or here on the way in (a line caught on the way up)
     snag_at_m: float | None = None  # the switch closes here on the way out
     switch_stuck_open: bool = False  # the switch never closes
+    switch_stuck_closed: bool = False  # the switch never opens (a shorted wire)
     lose_every: int = 0  # every n-th pulse paying out is lost (a slipping line), 0 = none
     overcurrent_a: float | None = None  # the motor draws this whenever it runs
 
@@ -269,6 +270,8 @@ class SimulatedDrum:
             closed = True
         if self.faults.switch_stuck_open:
             closed = False
+        if self.faults.switch_stuck_closed:
+            closed = True
         if closed == self._switch_closed:
             return
         self._switch_closed = closed

@@ -8,9 +8,11 @@ docs/gpio-winch.md.
 Threads. gpiozero calls the pulse and switch callbacks on its own thread, and
 the loop watchdog runs on another. On those threads the only thing done to
 the motor is *stopping* it (at the target count, at the end of the line, at
-the switch), under the H-bridge's lock; everything else is handed to the event
-loop with `call_soon_threadsafe`. Starting the motor, the ramp, the safety
-checks, logging and journaling happen on the loop only.
+the switch, where the witnesses disagree), under the H-bridge's lock; everything
+else is handed to the event loop with `call_soon_threadsafe`. What "home" means
+(two witnesses: the count and the switch) is its base's, `home.HomeWitnessing`.
+Starting the motor, the ramp, the safety checks, logging and journaling happen
+on the loop only.
 
 It must never leave the motor running: `stop`, `close`, an exception in a
 tick, the loop going quiet (watchdog thread) and interpreter exit (atexit)
@@ -35,7 +37,9 @@ from cc_daemon.core.errors import WinchFault
 from cc_daemon.core.winch.drum import CurrentSensor, Drum, VoltageDivider
 from cc_daemon.core.winch.safety import Limits, MotionGuard
 from cc_daemon.core.winch.status import WinchStatus
+from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
 from cc_daemon.drivers.winch.devices import GpioDevices
+from cc_daemon.drivers.winch.home import HomeWitnessing
 from cc_daemon.drivers.winch.motor import Direction
 from cc_daemon.drivers.winch.watchdog import LoopWatchdog
 from cc_daemon.ground.clock import Clock
@@ -45,7 +49,6 @@ _log = structlog.get_logger("cc_daemon.winch.gpio")
 TICK_S = 0.05  # safety checks, ramp steps and watchdog feeding while the motor runs
 RAMP_FLOOR = 0.3  # the soft start begins at this fraction of the duty
 APPROACH_FRACTION = 0.5  # within approach_m of the target the duty is halved
-SWITCH_SETTLE_S = 0.1  # a switch that opens by itself must stay open this long to be news
 
 EventSink = Callable[..., None]  # (kind, **detail): the journal's record_event
 
@@ -55,7 +58,7 @@ class _Goal(enum.Enum):
     HOME = "home"  # haul in until the limit switch closes
 
 
-class GpioWinch:
+class GpioWinch(HomeWitnessing):
     def __init__(
         self,
         cfg: WinchGpioSettings,
@@ -80,6 +83,9 @@ class GpioWinch:
         self._current = CurrentSensor(cfg.adc_vref_v, cfg.current_zero_v, cfg.current_v_per_a)
         self._divider = VoltageDivider(cfg.adc_vref_v, cfg.divider_r1_ohm, cfg.divider_r2_ohm)
         self._limits = Limits(cfg.stall_timeout_s, cfg.max_current_a, cfg.overcurrent_s)
+        self._witnesses = Witnesses(
+            cfg.count_tolerance_m, cfg.switch_settle_s, LEAVE_PULSES * self.drum.metres_per_pulse
+        )
         self._changed = asyncio.Event()
         # Shared with gpiozero's thread, under _lock.
         self._lock = threading.Lock()
@@ -88,13 +94,23 @@ class GpioWinch:
         # count + 1 pulses, so the line at the last edge depends on its direction.
         self._count = 0
         self._last_step = 1
-        self._count_known = True  # False while homing from an unknown position
+        # False until the switch has set it (start-up with it open, homing from an
+        # unknown position): a count that means nothing witnesses nothing.
+        self._count_known = bool(devices.switch.is_active)
         self._goal: _Goal | None = None
         self._target_count = 0
         self._last_direction = Direction.PAY_OUT  # a lone pulse with no command: line going out
+        self._switch_now = bool(devices.switch.is_active)  # as the last edge left it
         # Loop side only.
         self._fault: str | None = None
         self._homed = False
+        # The second witness: since when the switch has been closed, whether both
+        # witnesses have agreed on home since, and a disagreement standing until
+        # they agree again (docs/gpio-winch.md "Home has two witnesses").
+        self._closed_since: float | None = None
+        self._verified = False
+        self._distrust: str | None = None
+        self._settle: asyncio.TimerHandle | None = None
         self._guard: MotionGuard | None = None
         self._started_at = 0.0
         self._duty = 0.0
@@ -112,23 +128,33 @@ class GpioWinch:
         if devices.encoder is not None:
             devices.encoder.when_rotated_clockwise = self._step_out_thread
             devices.encoder.when_rotated_counter_clockwise = self._step_in_thread
-        if devices.switch.is_active:
-            self._homed = True
+        if self._switch_now:
+            self._closed_since = clock.monotonic()
+            self._schedule_settle(self._closed_since)
 
     # ------------------------------------------------------------ the Winch interface
 
     def status(self) -> WinchStatus:
         self._changed.clear()
+        running = self._bridge.direction is not Direction.STOPPED
         return WinchStatus(
             depth_m=max(0.0, self.line_m),
-            moving=self._bridge.direction is not Direction.STOPPED,
+            # Settling at the switch is still arriving: home is not yet verified.
+            moving=running or self._settle is not None,
             at_home=self.at_home,
-            fault=self._fault,
+            # A standing disagreement is the fault, except while an operator's
+            # hand haul runs (it must not stop the haul that can clear it).
+            fault=self._fault or (self._distrust if not running else None),
         )
 
     def move_to(self, depth_m: float) -> None:
         if self._closed:
             raise WinchFault("the GPIO winch is closed")
+        if self._distrust is not None:
+            raise WinchFault(
+                f"{self._distrust}; the winch moves only by hand (P-U, `cc-daemon winch`) "
+                "until both witnesses agree on home"
+            )
         if not self._homed:
             raise WinchFault(
                 "winch not homed: the limit switch has not closed since start-up; "
@@ -165,14 +191,6 @@ class GpioWinch:
     # ------------------------------------------------------------ more than a Winch
 
     @property
-    def at_home(self) -> bool:
-        return bool(self._dev.switch.is_active)
-
-    @property
-    def homed(self) -> bool:
-        return self._homed
-
-    @property
     def line_m(self) -> float:
         with self._lock:
             return self.drum.line_m(self._edge())
@@ -196,41 +214,16 @@ class GpioWinch:
             return None
         return self._divider.volts(float(self._dev.voltage.value))
 
-    async def start_up(self) -> None:
-        """Make sure the probe is home before casts are accepted (READY comes after)."""
-        if self.at_home:
-            self._zero_at_switch()
-            self._homed = True
-            _log.info("winch at home: limit switch closed at start")
-            return
-        if not self._cfg.home_at_start:
-            self._fault = (
-                "not homed: the limit switch was open at start and home_at_start is false; "
-                "casts are refused until the probe is homed (by hand or `cc-daemon winch home`)"
-            )
-            _log.error("winch not homed: casts refused", reason=self._fault)
-            self._record("winch_fault", fault=self._fault)
-            return
-        await self.home(reason="limit switch open at start: the probe may be down")
-
-    async def home(self, *, reason: str = "operator request") -> bool:
-        """Haul in until the limit switch closes; True once home. The count means
-        nothing until then (the probe was moved, or the power cut)."""
-        with self._lock:
-            self._count_known = self.at_home
-        _log.warning("winch homing: hauling in until the limit switch closes", reason=reason)
-        self._record("winch_homing", reason=reason, counted_line_m=round(self.line_m, 3))
-        self._begin(0.0, homing=True)
-        while self._bridge.direction is not Direction.STOPPED:
-            self.status()
-            await self.wait_change(TICK_S * 4)
-        if self.at_home:
-            self._homed = True
-            _log.info("winch homed", took_s=round(self._clock.monotonic() - self._started_at, 2))
-            self._record("winch_homed", reason=reason)
-            return True
-        _log.critical("winch homing failed: the probe is not home", fault=self._fault)
-        return False
+    def hand_move(self, depth_m: float) -> None:
+        """An operator's move (the RC stick): like `jog`, allowed while the witnesses
+        disagree, since an operator's haul home is what can make them agree again."""
+        line = self.line_m
+        if depth_m <= 0.0:
+            self.jog(Direction.HAUL_IN)
+        elif depth_m > line:
+            self.jog(Direction.PAY_OUT, by_m=depth_m - line)
+        else:
+            self.jog(Direction.HAUL_IN, by_m=line - depth_m)
 
     def jog(self, direction: Direction, *, by_m: float | None = None) -> None:
         """Run the motor by hand (calibration): pay out or haul in until `stop`, or
@@ -262,8 +255,14 @@ class GpioWinch:
         with self._lock:
             count = self._edge()
         if target_m == 0.0:
-            if self.at_home:
-                return  # already there: nothing to run
+            if self.switch_closed and self._count_known:
+                # Nothing to run: home if the count agrees (once settled), else a fault.
+                reason = self._witnesses.disagreement(self.line_m, True, 0)
+                if reason is not None:
+                    self._distrusted(reason)
+                elif not self._verified and self._settle is None:
+                    self._schedule_settle(self._closed_since or self._clock.monotonic())
+                return
             with self._lock:
                 self._goal = _Goal.HOME
             self._start_motor(Direction.HAUL_IN, None, homing=homing)
@@ -412,11 +411,24 @@ class GpioWinch:
             self._last_step = step
             count = self._edge()
             running = self._bridge.direction
+            closed = self._switch_now
             if running is Direction.PAY_OUT and count >= self._max_count:
                 stop = "end of line"
-            elif self._goal is _Goal.TARGET and (
-                (running is Direction.PAY_OUT and count >= self._target_count)
-                or (running is Direction.HAUL_IN and count <= self._target_count)
+            elif running is not Direction.STOPPED and self._count_known:
+                # The witnesses, at every edge of a motion: a switch still closed
+                # well into a descent, or hauling on past zero with it open.
+                if running is Direction.HAUL_IN and closed and self._count <= 0:
+                    stop = "home"  # the switch was already closed: the count says we are in
+                else:
+                    stop = self._witnesses.disagreement(
+                        self.drum.line_m(count), closed, int(running)
+                    )
+            if stop is None and (
+                self._goal is _Goal.TARGET
+                and (
+                    (running is Direction.PAY_OUT and count >= self._target_count)
+                    or (running is Direction.HAUL_IN and count <= self._target_count)
+                )
             ):
                 stop = "arrived"
             if stop is not None:
@@ -425,6 +437,7 @@ class GpioWinch:
 
     def _switch_closed_thread(self) -> None:
         with self._lock:
+            self._switch_now = True
             running = self._bridge.direction
             if running is Direction.PAY_OUT and self._edge() <= 0:
                 # Still within the first pulse of leaving the block: the switch
@@ -435,6 +448,8 @@ class GpioWinch:
         self._tell_loop(self._switch_seen, True, running)
 
     def _switch_opened_thread(self) -> None:
+        with self._lock:
+            self._switch_now = False
         self._tell_loop(self._switch_seen, False, self._bridge.direction)
 
     def _tell_loop(self, callback: Callable[..., None], *args: Any) -> None:
@@ -453,6 +468,12 @@ class GpioWinch:
             )
         elif stop == "arrived":
             self._arrived(count)
+        elif stop == "home":
+            self._halt()
+            _log.info("winch home by the count, the limit switch already closed")
+            self._schedule_settle(self._closed_since or self._clock.monotonic())
+        elif stop is not None:
+            self._distrusted(stop)
         elif self._arrived_count is not None and self._bridge.direction is Direction.STOPPED:
             # A pulse after an arrival stop: the drum coasted on.
             extra = abs(count - self._arrived_count)
@@ -484,66 +505,6 @@ class GpioWinch:
         self._arrived_count = count
         self.overshoots.append(0)
         _log.debug("winch arrived", line_m=round(self.drum.line_m(count), 3))
-
-    def _switch_seen(self, closed: bool, running: Direction) -> None:
-        if not closed:
-            if running is Direction.STOPPED and self._homed:
-                self._loop.call_later(SWITCH_SETTLE_S, self._opened_while_stopped)
-            self._changed.set()
-            return
-        line = self.line_m
-        self._zero_at_switch()
-        self._homed = True
-        if running is Direction.PAY_OUT:
-            self._fail(
-                f"limit switch closed while paying out at {line:.2f} m counted "
-                "(a snag or a wiring fault); the motor was stopped",
-                counted_line_m=round(line, 3),
-            )
-            return
-        if running is Direction.HAUL_IN:
-            self._halt()
-            _log.info("winch home: limit switch closed", counted_line_m=round(line, 3))
-        self._changed.set()
-
-    def _opened_while_stopped(self) -> None:
-        if self.at_home or self._bridge.direction is not Direction.STOPPED:
-            return  # a bounce, or a motion began
-        # Nobody is paying out, yet the probe left the block: it slipped, or someone
-        # pulled it. The next station brings it home first (a recovery cast).
-        _log.warning(
-            "winch count and limit switch disagree: the switch opened with the motor stopped",
-            counted_line_m=round(self.line_m, 3),
-            switch="open",
-        )
-
-    def _zero_at_switch(self) -> None:
-        with self._lock:
-            count = self._count  # at the switch the line is in [0, 1) pulses: count 0
-            self._count = 0
-            self._last_step = 1
-            known, self._count_known = self._count_known, True
-        line = self.drum.line_m(count)
-        if count == 0:
-            return
-        if not known:
-            _log.info("winch count set at the switch after homing from an unknown position")
-            return
-        if abs(line) > self._cfg.count_tolerance_m:
-            _log.warning(
-                "winch count and limit switch disagree: count zeroed at the switch",
-                counted_line_m=round(line, 3),
-                switch="closed",
-                tolerance_m=self._cfg.count_tolerance_m,
-            )
-        else:
-            _log.info("winch count zeroed at the switch", counted_line_m=round(line, 3))
-        self._record(
-            "winch_count_corrected",
-            counted_line_m=round(line, 3),
-            pulses=count,
-            corrected_to_m=0.0,
-        )
 
     def _record(self, kind: str, **detail: Any) -> None:
         if self._record_sink is None:
