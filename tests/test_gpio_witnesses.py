@@ -9,13 +9,17 @@ witnesses into agreement clears it.
 from __future__ import annotations
 
 import asyncio
+import sys
 import time
 
 import pytest
+import structlog
 
 from cc_daemon.core.errors import WinchFault
+from cc_daemon.core.winch.encoder import EncoderJudge
 from cc_daemon.core.winch.status import HOMING_FAILED, refuses_casts, verified_home
 from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
+from cc_daemon.drivers.winch.gpio import GIL_SWITCH_S
 from cc_daemon.drivers.winch.motor import Direction
 from cc_daemon.sim.drum import DrumFaults
 from tests.gpiokit import gpio_rig
@@ -153,3 +157,69 @@ async def test_a_failed_start_up_homing_says_so_in_the_words_mains_rules_read() 
         await rig.settle()
         status = rig.winch.status()
         assert status.fault is None and verified_home(status) and not refuses_casts(status)
+
+
+# ---------------------------------------------------------------- the encoder
+
+
+def test_the_encoder_judge_knows_a_coasting_drum_from_a_storm() -> None:
+    judge = EncoderJudge(max_pulses_s=8.0, coast_pulses=3)
+    assert [judge.pulse(t, False) for t in (0.0, 0.1, 0.2)] == [None] * 3
+    coast = judge.pulse(0.3, False)
+    assert coast is not None and "4 pulses with the motor off" in coast
+    judge.motor_started()
+    # Running at full speed (8/s) and at 2.9 times it: the drum.
+    assert all(judge.pulse(i / 8.0, True) is None for i in range(20))
+    judge.motor_started()
+    assert all(judge.pulse(i / 23.0, True) is None for i in range(20))
+    judge.motor_started()
+    storm = [judge.pulse(i / 50_000, True) for i in range(5)]
+    assert storm[:4] == [None] * 4 and storm[4] is not None and "faster than" in storm[4]
+
+
+async def test_an_idle_pulse_storm_is_an_encoder_fault_not_7068_m() -> None:
+    async with gpio_rig() as rig:
+        pulse = rig.drum.factory.pin(rig.winch._cfg.pulse_pin)
+        rig.drum.close()  # the test drives the pins now: 2000 pulses, the motor off
+        for _ in range(2000):
+            pulse.drive_high()
+            pulse.drive_low()
+        await asyncio.sleep(0.1)
+        status = rig.winch.status()
+        assert status.fault is not None and "encoder fault" in status.fault
+        assert "with the motor off" in status.fault
+        assert not status.at_home
+        assert rig.winch.line_m <= 0.5  # counted up to the coasting allowance, no more
+        assert rig.kinds().count("winch_fault") == 1
+        with pytest.raises(WinchFault, match="encoder fault"):
+            rig.winch.move_to(2.0)
+        rig.winch.jog(Direction.HAUL_IN)  # the switch is closed: nothing could stop it
+        assert rig.drum.motor() == (0, 0.0)
+
+
+async def test_a_pulse_storm_mid_descent_stops_the_motor() -> None:
+    async with gpio_rig() as rig:
+        pulse = rig.drum.factory.pin(rig.winch._cfg.pulse_pin)
+        rig.winch.move_to(3.0)
+        await asyncio.sleep(0.5)
+        with structlog.testing.capture_logs() as logs:
+            for _ in range(3000):
+                pulse.drive_high()
+                pulse.drive_low()
+            await rig.settle()
+            await asyncio.sleep(1.2)
+        status = rig.winch.status()
+        assert status.fault is not None and "faster than the drum can turn" in status.fault
+        assert rig.drum.motor() == (0, 0.0)
+        assert status.depth_m < 3.0  # not the kilometres the storm would count
+        summaries = [e for e in logs if e["event"] == "winch encoder fault: pulses not counted"]
+        assert 1 <= len(summaries) <= 2 and sum(e["pulses"] for e in summaries) > 2900
+
+
+async def test_the_winch_shortens_the_switch_interval_while_open_and_restores_it() -> None:
+    # A storm on gpiozero's thread must not hold the GIL for the default 5 ms
+    # (docs/gpio-winch.md "The pulse storm").
+    before = sys.getswitchinterval()
+    async with gpio_rig():
+        assert sys.getswitchinterval() == pytest.approx(GIL_SWITCH_S)
+    assert sys.getswitchinterval() == before

@@ -26,6 +26,7 @@ import atexit
 import contextlib
 import enum
 import math
+import sys
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -35,6 +36,7 @@ import structlog
 from cc_daemon.config import WinchGpioSettings
 from cc_daemon.core.errors import WinchFault
 from cc_daemon.core.winch.drum import CurrentSensor, Drum, VoltageDivider
+from cc_daemon.core.winch.encoder import EncoderJudge, coast_allowance, max_pulse_rate
 from cc_daemon.core.winch.safety import Limits, MotionGuard
 from cc_daemon.core.winch.status import WinchStatus
 from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
@@ -46,6 +48,11 @@ from cc_daemon.ground.clock import Clock
 
 _log = structlog.get_logger("cc_daemon.winch.gpio")
 
+# The interpreter's thread switch interval while the winch is open: gpiozero's
+# callback thread (a pulse storm on a broken wire) may otherwise hold the GIL for
+# the default 5 ms each time, and the loop answers the autopilot late
+# (docs/performance.md). Restored at close.
+GIL_SWITCH_S = 0.0005
 TICK_S = 0.05  # safety checks, ramp steps and watchdog feeding while the motor runs
 RAMP_FLOOR = 0.3  # the soft start begins at this fraction of the duty
 APPROACH_FRACTION = 0.5  # within approach_m of the target the duty is halved
@@ -101,6 +108,15 @@ class GpioWinch(HomeWitnessing):
         self._target_count = 0
         self._last_direction = Direction.PAY_OUT  # a lone pulse with no command: line going out
         self._switch_now = bool(devices.switch.is_active)  # as the last edge left it
+        mpp = self.drum.metres_per_pulse
+        self._encoder = EncoderJudge(
+            max_pulses_s=max_pulse_rate(
+                cfg.line_speed_m_s, min(cfg.payout_duty, cfg.haulin_duty), mpp
+            ),
+            coast_pulses=coast_allowance(cfg.count_tolerance_m, mpp),
+        )
+        self._encoder_bad: str | None = None  # pulses that cannot be true: not counted
+        self._ignored = 0  # pulses not counted since the encoder fault
         # Loop side only.
         self._fault: str | None = None
         self._homed = False
@@ -111,6 +127,8 @@ class GpioWinch(HomeWitnessing):
         self._verified = False
         self._distrust: str | None = None
         self._settle: asyncio.TimerHandle | None = None
+        self._ignored_told = 0
+        self._summary: asyncio.TimerHandle | None = None
         self._guard: MotionGuard | None = None
         self._started_at = 0.0
         self._duty = 0.0
@@ -120,6 +138,8 @@ class GpioWinch(HomeWitnessing):
         self._closed = False
         self.overshoots: list[int] = []  # pulses past the target after each arrival
         self._watchdog = LoopWatchdog(cfg.loop_watchdog_s, self._watchdog_trip)
+        self._switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval, GIL_SWITCH_S))
         atexit.register(self._emergency_stop)
         devices.switch.when_activated = self._switch_closed_thread
         devices.switch.when_deactivated = self._switch_opened_thread
@@ -180,7 +200,10 @@ class GpioWinch(HomeWitnessing):
         try:
             self._halt()
         finally:
+            if self._summary is not None:
+                self._summary.cancel()
             self._watchdog.close()
+            sys.setswitchinterval(self._switch_interval)
             atexit.unregister(self._emergency_stop)
             try:
                 self._dev.close()
@@ -225,6 +248,26 @@ class GpioWinch(HomeWitnessing):
         else:
             self.jog(Direction.HAUL_IN, by_m=line - depth_m)
 
+    def _encoder_faulted(self, reason: str) -> None:
+        self._distrusted(f"encoder fault: {reason}; the count is no longer trusted")
+        self._summarise_ignored()
+
+    def _summarise_ignored(self) -> None:
+        """While the encoder is faulted: once a second at most, the pulses not counted."""
+        self._summary = None
+        with self._lock:
+            ignored, bad = self._ignored, self._encoder_bad
+        if ignored > self._ignored_told:
+            _log.warning(
+                "winch encoder fault: pulses not counted",
+                pulses=ignored - self._ignored_told,
+                since_fault=ignored,
+                fault=bad,
+            )
+            self._ignored_told = ignored
+        if bad is not None and not self._closed:
+            self._summary = self._loop.call_later(1.0, self._summarise_ignored)
+
     def jog(self, direction: Direction, *, by_m: float | None = None) -> None:
         """Run the motor by hand (calibration): pay out or haul in until `stop`, or
         for `by_m` metres by the count.
@@ -234,6 +277,12 @@ class GpioWinch(HomeWitnessing):
         self._halt()
         self._fault = None
         if direction is Direction.STOPPED:
+            self._changed.set()
+            return
+        if direction is Direction.HAUL_IN and self.switch_closed and self._encoder_bad:
+            # Neither witness could stop it: the switch is already closed and the
+            # count is not trusted. Nothing would keep it off the block.
+            _log.error("jog refused: hauling in with the switch closed and the encoder faulted")
             self._changed.set()
             return
         with self._lock:
@@ -292,6 +341,7 @@ class GpioWinch(HomeWitnessing):
         self._told_open_at_zero = False
         with self._lock:
             self._last_direction = direction
+            self._encoder.motor_started()
         first = self._duty if cfg.ramp_s == 0 else self._duty * RAMP_FLOOR
         self._watchdog.arm()
         self._bridge.start(direction, first)
@@ -406,6 +456,18 @@ class GpioWinch(HomeWitnessing):
 
     def _count_thread(self, step: int) -> None:
         stop = None
+        now = self._clock.monotonic()
+        with self._lock:
+            if self._encoder_bad is not None:
+                self._ignored += 1  # a storm: the least possible, and nothing to the loop
+                return
+            bad = self._encoder.pulse(now, self._bridge.direction is not Direction.STOPPED)
+            if bad is not None:
+                self._encoder_bad = bad
+                self._bridge.stop()
+        if bad is not None:
+            self._tell_loop(self._encoder_faulted, bad)
+            return
         with self._lock:
             self._count += step
             self._last_step = step

@@ -49,6 +49,9 @@ class HomeWitnessing:
     _last_step: int
     _count_known: bool
     _switch_now: bool
+    _encoder_bad: str | None
+    _ignored: int
+    _ignored_told: int
     _witnesses: Witnesses
     drum: Drum
     _fault: str | None
@@ -209,6 +212,9 @@ class HomeWitnessing:
         self._homed = True
         _log.info("winch home: limit switch closed", counted_line_m=round(line, 3))
         if self._distrust is not None:
+            with self._lock:  # an encoder fault too: the count is trusted again from zero
+                self._encoder_bad, self._ignored = None, 0
+            self._ignored_told = 0
             _log.warning("winch home verified: both witnesses agree again", was=self._distrust)
             self._record("winch_home_verified", was=self._distrust)
             self._distrust = None
