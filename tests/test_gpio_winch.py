@@ -231,14 +231,16 @@ async def test_the_loop_watchdog_stops_the_motor_when_the_loop_blocks() -> None:
 async def test_an_exception_in_a_check_stops_the_motor(monkeypatch: pytest.MonkeyPatch) -> None:
     async with gpio_rig() as rig:
 
-        def broken() -> float:
-            raise OSError("SPI bus gone")
+        def broken(now: float) -> None:
+            raise OSError("PWM chip gone")
 
-        monkeypatch.setattr(rig.winch, "motor_current_a", broken)
+        # Was motor_current_a raising: the tick reads the current through the
+        # sensing helper now, which the zero check before a move may disable.
+        monkeypatch.setattr(rig.winch, "_set_power", broken)
         rig.winch.move_to(3.0)
         await rig.settle()
         status = rig.winch.status()
-        assert status.fault is not None and "SPI bus gone" in status.fault
+        assert status.fault is not None and "PWM chip gone" in status.fault
         assert rig.drum.motor() == (0, 0.0)
 
 

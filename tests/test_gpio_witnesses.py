@@ -17,6 +17,7 @@ import structlog
 
 from cc_daemon.core.errors import WinchFault
 from cc_daemon.core.winch.encoder import EncoderJudge
+from cc_daemon.core.winch.sensors import current_fault
 from cc_daemon.core.winch.status import HOMING_FAILED, refuses_casts, verified_home
 from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
 from cc_daemon.drivers.winch.gpio import GIL_SWITCH_S
@@ -223,3 +224,58 @@ async def test_the_winch_shortens_the_switch_interval_while_open_and_restores_it
     async with gpio_rig():
         assert sys.getswitchinterval() == pytest.approx(GIL_SWITCH_S)
     assert sys.getswitchinterval() == before
+
+
+# ---------------------------------------------------------------- the current sensor
+
+
+def test_current_readings_that_cannot_be_true() -> None:
+    assert current_fault(1.0, 4.3, motor_on=True) is not None  # at the top rail
+    assert current_fault(0.0, -13.5, motor_on=False) is not None  # at the bottom rail
+    off = current_fault(0.87, 2.0, motor_on=False)
+    assert off is not None and "with the motor off" in off
+    assert current_fault(0.87, 2.0, motor_on=True) is None  # running: 2 A is a motor
+    assert current_fault(0.76, 0.02, motor_on=False) is None
+
+
+@pytest.mark.parametrize("adc", [1.0, 0.87], ids=["stuck-full-scale", "2-amps-at-rest"])
+async def test_a_faulty_current_sensor_is_found_at_rest_and_said_once(adc: float) -> None:
+    async with gpio_rig(adc=True, faults=DrumFaults(current_adc=adc)) as rig:
+        rig.winch.move_to(1.0)  # the zero check before the move finds it
+        await rig.settle()
+        status = rig.winch.status()
+        # Not a 0.5 s "overcurrent stall": the move arrives, guarded by the pulses.
+        assert status.fault is None and abs(status.depth_m - 1.0) <= MPP / 2
+        assert rig.winch.sensor_fault is not None
+        rig.winch.move_to(0.0)
+        await rig.settle()
+        assert rig.winch.status().at_home
+        assert rig.kinds().count("winch_sensor_fault") == 1
+        [event] = [d for k, d in rig.events if k == "winch_sensor_fault"]
+        assert event["fallback"] == "stall-by-pulses"
+
+
+async def test_a_jam_is_still_a_stall_once_the_current_sensor_is_faulty() -> None:
+    faults = DrumFaults(current_adc=1.0, jam_at_m=0.8)
+    async with gpio_rig(adc=True, faults=faults) as rig:
+        rig.winch.move_to(3.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and status.fault.startswith("stall: no drum pulse")
+        assert rig.drum.motor() == (0, 0.0)
+
+
+async def test_a_current_sensor_that_cannot_be_read_does_not_refuse_the_move(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    async with gpio_rig(adc=True) as rig:
+
+        def gone(*, motor_on: bool) -> float:
+            raise OSError("SPI bus gone")
+
+        monkeypatch.setattr(rig.winch._sensing, "current_a", gone)
+        rig.winch.move_to(0.5)
+        monkeypatch.undo()
+        await rig.settle()
+        assert rig.winch.status().fault is None
+        assert "SPI bus gone" in (rig.winch.sensor_fault or "")

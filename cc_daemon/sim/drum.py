@@ -128,6 +128,7 @@ class DrumFaults:
     switch_stuck_closed: bool = False  # the switch never opens (a shorted wire)
     lose_every: int = 0  # every n-th pulse paying out is lost (a slipping line), 0 = none
     overcurrent_a: float | None = None  # the motor draws this whenever it runs
+    current_adc: float | None = None  # the current sensor's ADC stuck here (0..1): a bad sensor
 
 
 class SimulatedDrum:
@@ -291,6 +292,8 @@ class SimulatedDrum:
 
     def _adc_channel(self, channel: int) -> float:
         if channel == self.cfg.current_channel:
+            if self.faults.current_adc is not None:
+                return self.faults.current_adc
             return current_fraction(self._current, self.motor_current_a())
         if channel == self.cfg.voltage_channel:
             return self._divider.fraction(self.supply_v)

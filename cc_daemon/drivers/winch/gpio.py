@@ -35,7 +35,7 @@ import structlog
 
 from cc_daemon.config import WinchGpioSettings
 from cc_daemon.core.errors import WinchFault
-from cc_daemon.core.winch.drum import CurrentSensor, Drum, VoltageDivider
+from cc_daemon.core.winch.drum import Drum
 from cc_daemon.core.winch.encoder import EncoderJudge, coast_allowance, max_pulse_rate
 from cc_daemon.core.winch.safety import Limits, MotionGuard
 from cc_daemon.core.winch.status import WinchStatus
@@ -43,6 +43,7 @@ from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
 from cc_daemon.drivers.winch.devices import GpioDevices
 from cc_daemon.drivers.winch.home import HomeWitnessing
 from cc_daemon.drivers.winch.motor import Direction
+from cc_daemon.drivers.winch.sensing import MotorSensing
 from cc_daemon.drivers.winch.watchdog import LoopWatchdog
 from cc_daemon.ground.clock import Clock
 
@@ -87,8 +88,7 @@ class GpioWinch(HomeWitnessing):
         self.max_line_m = max_line_m
         # Rounded down: the last pulse allowed is never past the end of the line.
         self._max_count = math.floor(max_line_m / self.drum.metres_per_pulse + 1e-9)
-        self._current = CurrentSensor(cfg.adc_vref_v, cfg.current_zero_v, cfg.current_v_per_a)
-        self._divider = VoltageDivider(cfg.adc_vref_v, cfg.divider_r1_ohm, cfg.divider_r2_ohm)
+        self._sensing = MotorSensing(cfg, devices, self._record)
         self._limits = Limits(cfg.stall_timeout_s, cfg.max_current_a, cfg.overcurrent_s)
         self._witnesses = Witnesses(
             cfg.count_tolerance_m, cfg.switch_settle_s, LEAVE_PULSES * self.drum.metres_per_pulse
@@ -228,14 +228,16 @@ class GpioWinch(HomeWitnessing):
             return self._count
 
     def motor_current_a(self) -> float | None:
-        if self._dev.current is None:
-            return None
-        return self._current.amps(float(self._dev.current.value))
+        """The current sensor's reading as it is (trusted or not: see `sensor_fault`)."""
+        return self._sensing.raw_current_a()
+
+    @property
+    def sensor_fault(self) -> str | None:
+        """The current sensor's fault, once found (overcurrent then by pulses alone)."""
+        return self._sensing.fault
 
     def supply_v(self) -> float | None:
-        if self._dev.voltage is None:
-            return None
-        return self._divider.volts(float(self._dev.voltage.value))
+        return self._sensing.supply_v()
 
     def hand_move(self, depth_m: float) -> None:
         """An operator's move (the RC stick): like `jog`, allowed while the witnesses
@@ -326,6 +328,7 @@ class GpioWinch(HomeWitnessing):
 
     def _start_motor(self, direction: Direction, duty: float | None, *, homing: bool) -> None:
         cfg = self._cfg
+        self._sensing.zero_check()  # the motor is off: a sensor far from 0 A is faulty
         now = self._clock.monotonic()
         nominal = cfg.payout_duty if direction is Direction.PAY_OUT else cfg.haulin_duty
         self._duty = duty or nominal
@@ -417,7 +420,7 @@ class GpioWinch(HomeWitnessing):
             return
         self._watchdog.feed()
         now = self._clock.monotonic()
-        fault = guard.check(now, self.motor_current_a(), self.line_m)
+        fault = guard.check(now, self._sensing.current_a(motor_on=True), self.line_m)
         if fault is not None:
             self._fail(fault, peak_current_a=round(guard.peak_current_a, 3))
             return
