@@ -119,6 +119,9 @@ class _MockMCP3008(MockSPIDevice):  # type: ignore[misc]
             self.tx_word(round(fraction * 1023), 12)
 
 
+SNAG_AT_M = 1.0  # --winch-fault snag: the switch closes here on the way down
+
+
 @dataclass
 class DrumFaults:
     jam_at_m: float | None = None  # the drum stops turning here on the way out
@@ -305,6 +308,12 @@ def mock_drum_for(settings: Settings) -> SimulatedDrum:
     on it too (--simulate --winch gpio-mock --winch-stall / --winch-fail-home)."""
     cfg = settings.winch.gpio
     sim = settings.winch.sim
-    faults = DrumFaults(jam_at_m=sim.stall_at_m, jam_in_at_m=0.5 if sim.fail_home else None)
+    faults = DrumFaults(
+        jam_at_m=sim.stall_at_m,
+        jam_in_at_m=0.5 if sim.fail_home else None,
+        switch_stuck_closed=sim.drum_fault == "switch-stuck",
+        snag_at_m=SNAG_AT_M if sim.drum_fault == "snag" else None,
+        current_adc=1.0 if sim.drum_fault == "adc-garbage" else None,
+    )
     speed = cfg.line_speed_m_s / cfg.payout_duty
     return SimulatedDrum(SimulatedDrum.factory_for(cfg), cfg, full_speed_m_s=speed, faults=faults)
