@@ -11,10 +11,12 @@ from __future__ import annotations
 import asyncio
 import sys
 import time
+from typing import Any
 
 import pytest
 import structlog
 
+from cc_daemon.config import Settings
 from cc_daemon.core.errors import WinchFault
 from cc_daemon.core.winch.encoder import EncoderJudge
 from cc_daemon.core.winch.sensors import current_fault
@@ -22,7 +24,7 @@ from cc_daemon.core.winch.status import HOMING_FAILED, refuses_casts, verified_h
 from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
 from cc_daemon.drivers.winch.gpio import GIL_SWITCH_S
 from cc_daemon.drivers.winch.motor import Direction
-from cc_daemon.sim.drum import DrumFaults
+from cc_daemon.sim.drum import DrumFaults, mock_drum_for
 from tests.gpiokit import gpio_rig
 
 MPP = 3.141592653589793 * 0.09 / 2  # metres of line per pulse with the kit's drum
@@ -279,3 +281,42 @@ async def test_a_current_sensor_that_cannot_be_read_does_not_refuse_the_move(
         await rig.settle()
         assert rig.winch.status().fault is None
         assert "SPI bus gone" in (rig.winch.sensor_fault or "")
+
+
+async def test_the_mock_drums_pulse_storm_is_an_encoder_fault_where_it_starts() -> None:
+    async with gpio_rig(faults=DrumFaults(storm_at_m=1.0)) as rig:
+        rig.winch.move_to(3.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and "encoder fault" in status.fault
+        assert 1.0 <= status.depth_m <= 1.5  # counted to where the storm began, no further
+        assert rig.drum.motor() == (0, 0.0)
+        with pytest.raises(WinchFault, match="encoder fault"):
+            rig.winch.move_to(0.0)
+
+
+@pytest.mark.parametrize(
+    ("name", "fault"),
+    [
+        ("switch-stuck", {"switch_stuck_closed": True}),
+        ("snag", {"snag_at_m": 1.0}),
+        ("adc-garbage", {"current_adc": 1.0}),
+        ("pulse-storm", {"storm_at_m": 1.0}),
+    ],
+)
+def test_each_winch_sim_drum_fault_reaches_the_mock_drum(name: str, fault: dict[str, Any]) -> None:
+    settings = Settings.model_validate(
+        {
+            "winch": {
+                "backend": "gpio",
+                "gpio": {"pin_factory": "mock"},
+                "sim": {"drum_fault": name},
+            }
+        }
+    )
+    drum = mock_drum_for(settings)
+    try:
+        assert drum.faults == DrumFaults(**fault)
+    finally:
+        drum.close()
+        drum.factory.reset()

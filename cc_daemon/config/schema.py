@@ -80,7 +80,7 @@ class WinchSimSettings(BaseModel):
     fail_home: bool = False
     # The mock drum's sensor fault (--winch gpio-mock --winch-fault NAME): a switch
     # stuck closed, a snag at 1 m, the current sensor's ADC at full scale.
-    drum_fault: Literal["none", "switch-stuck", "snag", "adc-garbage"] = "none"
+    drum_fault: Literal["none", "switch-stuck", "snag", "adc-garbage", "pulse-storm"] = "none"
     # Outside --simulate a simulated winch would answer a real autopilot for a probe
     # that never moves: it runs only when this says so in so many words.
     allow_outside_simulation: bool = False
