@@ -5,10 +5,11 @@ RC stick brings both witnesses into agreement."""
 from __future__ import annotations
 
 import asyncio
+import sqlite3
 import time
 from pathlib import Path
 
-from cc_daemon.core.protocol import Finished, ProbeUp
+from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished, ProbeUp
 from cc_daemon.daemon.service import EXIT_PROBE_MAY_BE_DOWN
 from cc_daemon.sim.drum import DrumFaults
 from cc_daemon.sim.port import Received
@@ -70,3 +71,39 @@ async def test_a_snag_mid_descent_never_gives_rf_and_exit_says_probe_down(
         assert rig.drum.line_m > 0.9
         boat.daemon.request_shutdown()
         assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+
+
+async def test_failed_start_up_homing_refuses_every_cast_and_reports_the_fault(
+    tmp_path: Path,
+) -> None:
+    # The switch stuck open: start-up homing hauls until its deadline and fails. The
+    # GPIO winch says "homing failed: ...", the words main's refuses_casts reads.
+    faults = DrumFaults(switch_stuck_open=True)
+    async with (
+        gpio_rig(line_m=1.0, faults=faults, max_line_m=2.0, start_up=False) as rig,
+        _boat(tmp_path, rig) as boat,
+    ):
+        assert not rig.winch.homed
+        assert (rig.winch.status().fault or "").startswith("homing failed: ")
+        moved_at_start = rig.drum.max_line_seen
+        await boat.port.send(station())
+        received = []
+        deadline = time.monotonic() + 3.5
+        while (left := deadline - time.monotonic()) > 0:
+            got = await boat.port.receive(left)
+            if got is not None:
+                received.append(got.message)
+        assert isinstance(received[0], Ack)
+        assert not any(isinstance(m, Finished) for m in received)
+        reports = [m for m in received if isinstance(m, FaultReport)]
+        assert len(reports) >= 3  # at once, then every period: the fault, to the autopilot
+        assert not any(isinstance(m, DepthReport) for m in received)
+        assert rig.drum.motor() == (0, 0.0)
+        assert rig.drum.max_line_seen == moved_at_start  # never paid out an inch
+        boat.daemon.request_shutdown()
+        assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+    with sqlite3.connect(tmp_path / "j.db") as db:
+        [(detail,)] = db.execute(
+            "SELECT detail_json FROM events WHERE kind = 'cast_refused'"
+        ).fetchall()
+    assert "homing failed: " in detail
