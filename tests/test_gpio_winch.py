@@ -17,6 +17,7 @@ import pytest
 import structlog
 
 from cc_daemon.core.errors import WinchFault
+from cc_daemon.core.winch.status import ApproachSpeed
 from cc_daemon.drivers.winch.motor import Direction
 from cc_daemon.sim.drum import DrumFaults
 from tests.gpiokit import REPO, GpioRig, gpio_rig
@@ -52,6 +53,25 @@ async def test_a_move_ramps_up_slows_near_the_target_and_stops_within_half_a_pul
         assert max(running) == pytest.approx(0.9)
         assert running[-1] == pytest.approx(0.45)  # the approach: half power
         assert rig.winch.overshoots == [0] or rig.winch.overshoots[0] <= 1
+
+
+async def test_a_slow_move_runs_at_the_approach_duty_from_start_to_end() -> None:
+    # A blind cast's descent (core.winch.status ApproachSpeed): never above the
+    # approach duty, the soft start within it, and it still arrives on the count.
+    async with gpio_rig() as rig:
+        assert isinstance(rig.winch, ApproachSpeed)
+        rig.enable_pin.clear_states()
+        rig.winch.move_slowly_to(1.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is None and abs(status.depth_m - 1.0) <= MPP / 2
+        running = [duty for _, duty in enable_history(rig)][1:-1]
+        assert running[0] == pytest.approx(0.45 * 0.3)  # the soft start, from the cap
+        assert max(running) == pytest.approx(0.45)  # payout_duty 0.9 x the approach fraction
+        rig.enable_pin.clear_states()
+        rig.winch.move_to(2.0)  # the flag lasts one motion: the next runs at full duty
+        await rig.settle()
+        assert max(duty for _, duty in enable_history(rig)) == pytest.approx(0.9)
 
 
 async def test_a_cast_comes_home_at_the_switch_and_the_count_is_zero() -> None:

@@ -132,6 +132,7 @@ class GpioWinch(HomeWitnessing):
         self._guard: MotionGuard | None = None
         self._started_at = 0.0
         self._duty = 0.0
+        self._approach_duty = 0.0
         self._tick: asyncio.TimerHandle | None = None
         self._arrived_count: int | None = None  # where an arrival stop left the count
         self._told_open_at_zero = False
@@ -167,7 +168,7 @@ class GpioWinch(HomeWitnessing):
             fault=self._fault or (self._distrust if not running else None),
         )
 
-    def move_to(self, depth_m: float) -> None:
+    def move_to(self, depth_m: float, *, slow: bool = False) -> None:
         if self._closed:
             raise WinchFault("the GPIO winch is closed")
         if self._distrust is not None:
@@ -180,7 +181,12 @@ class GpioWinch(HomeWitnessing):
                 "winch not homed: the limit switch has not closed since start-up; "
                 "haul the probe up by hand or run `cc-daemon winch home`"
             )
-        self._begin(min(max(depth_m, 0.0), self.max_line_m))
+        self._begin(min(max(depth_m, 0.0), self.max_line_m), slow=slow)
+
+    def move_slowly_to(self, depth_m: float) -> None:
+        """`move_to` at the approach duty for the whole motion (core.winch.status's
+        ApproachSpeed): a blind cast pays out with the bed anywhere below."""
+        self.move_to(depth_m, slow=True)
 
     def stop(self) -> None:
         self._halt()
@@ -298,7 +304,7 @@ class GpioWinch(HomeWitnessing):
 
     # ------------------------------------------------------------ starting a motion
 
-    def _begin(self, target_m: float, *, homing: bool = False) -> None:
+    def _begin(self, target_m: float, *, homing: bool = False, slow: bool = False) -> None:
         self._halt()
         self._fault = None
         self._changed.set()
@@ -324,14 +330,17 @@ class GpioWinch(HomeWitnessing):
             self._goal = _Goal.TARGET
             self._target_count = min(target, self._max_count)
         direction = Direction.PAY_OUT if target > count else Direction.HAUL_IN
-        self._start_motor(direction, None, homing=False)
+        self._start_motor(direction, None, homing=False, slow=slow)
 
-    def _start_motor(self, direction: Direction, duty: float | None, *, homing: bool) -> None:
+    def _start_motor(
+        self, direction: Direction, duty: float | None, *, homing: bool, slow: bool = False
+    ) -> None:
         cfg = self._cfg
         self._sensing.zero_check()  # the motor is off: a sensor far from 0 A is faulty
         now = self._clock.monotonic()
         nominal = cfg.payout_duty if direction is Direction.PAY_OUT else cfg.haulin_duty
-        self._duty = duty or nominal
+        self._approach_duty = nominal * APPROACH_FRACTION  # a slow motion's whole duty
+        self._duty = self._approach_duty if slow else (duty or nominal)
         deadline = None
         if self._goal is _Goal.HOME:
             # Line out / haul speed + margin; from an unknown position (start-up
@@ -438,7 +447,7 @@ class GpioWinch(HomeWitnessing):
         # The last approach_m, and at least the last pulse: a count cannot see closer.
         approach = max(1, math.ceil(self._cfg.approach_m / self.drum.metres_per_pulse))
         if to_target and remaining <= approach:
-            duty = min(duty, self._duty * APPROACH_FRACTION)
+            duty = min(duty, self._approach_duty)
         self._bridge.set_duty(duty)
 
     # ------------------------------------------------------------ gpiozero's thread
