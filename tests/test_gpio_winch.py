@@ -352,3 +352,28 @@ async def test_the_probe_slipping_off_the_block_while_idle_is_logged() -> None:
         slipped = [e for e in logs if "opened with the motor stopped" in e["event"]]
         assert len(slipped) == 1 and slipped[0]["log_level"] == "warning"
         assert not rig.winch.status().at_home
+
+
+async def test_homing_a_probe_already_home_says_so_and_times_itself() -> None:
+    # `cc-daemon winch home` at home logged "hauling in" and took_s = the machine's
+    # uptime: no motion started, so the motion's start time was never set.
+    async with gpio_rig() as rig:
+        with structlog.testing.capture_logs() as logs:
+            assert await rig.winch.home()
+        assert not any(e["log_level"] == "warning" for e in logs)
+        assert any("already closed" in e["event"] for e in logs)
+        [homed] = [e for e in logs if e["event"] == "winch homed"]
+        assert 0.0 <= homed["took_s"] <= 1.0  # the settle time, not the uptime
+        assert rig.drum.max_line_seen == 0.0
+
+
+async def test_homing_a_probe_down_times_the_haul() -> None:
+    async with gpio_rig() as rig:
+        rig.winch.move_to(1.0)
+        await rig.settle()
+        started = time.monotonic()
+        with structlog.testing.capture_logs() as logs:
+            assert await rig.winch.home()
+        took = time.monotonic() - started
+        [homed] = [e for e in logs if e["event"] == "winch homed"]
+        assert homed["took_s"] == pytest.approx(took, abs=0.1)

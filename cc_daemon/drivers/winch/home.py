@@ -126,18 +126,24 @@ class HomeWitnessing:
     async def home(self, *, reason: str = "operator request") -> bool:
         """Haul in until the limit switch closes; True once home. The count means
         nothing until then (the probe was moved, or the power cut)."""
+        # Its own clock: with the switch already closed no motion starts, and the
+        # motion's start time would be stale (or 0: the machine's uptime).
+        started = self._clock.monotonic()
         with self._lock:
             # Closed now, the switch is the only witness there is: it sets the count.
-            self._count_known = self._switch_now
-            if self._switch_now:
+            closed = self._count_known = self._switch_now
+            if closed:
                 self._count, self._last_step = 0, 1
-        _log.warning("winch homing: hauling in until the limit switch closes", reason=reason)
+        if closed:
+            _log.info("winch homing: the limit switch is already closed; letting it settle")
+        else:
+            _log.warning("winch homing: hauling in until the limit switch closes", reason=reason)
         self._record("winch_homing", reason=reason, counted_line_m=round(self.line_m, 3))
         self._begin(0.0, homing=True)
         await self._settled_or_moved()
         if self.at_home:
             self._homed = True
-            _log.info("winch homed", took_s=round(self._clock.monotonic() - self._started_at, 2))
+            _log.info("winch homed", took_s=round(self._clock.monotonic() - started, 2))
             self._record("winch_homed", reason=reason)
             return True
         # Main's rules read this prefix (core.winch.status): a winch whose homing
