@@ -107,3 +107,30 @@ async def test_failed_start_up_homing_refuses_every_cast_and_reports_the_fault(
             "SELECT detail_json FROM events WHERE kind = 'cast_refused'"
         ).fetchall()
     assert "homing failed: " in detail
+
+
+async def test_winch_home_beside_the_daemon_hauls_in_past_the_witnesses_fault(
+    tmp_path: Path,
+) -> None:
+    # `cc-daemon winch home` with the daemon running asks it to haul a stranded probe
+    # in: on the GPIO winch that is an operator's haul, taken while the witnesses
+    # disagree (a move_to would be refused), and it ends the station with R-F.
+    async with (
+        gpio_rig(faults=DrumFaults(switch_stuck_closed=True)) as rig,
+        _boat(tmp_path, rig) as boat,
+    ):
+        await boat.port.send(station())
+        await _until_stranded(boat)
+        assert "witnesses disagree" in (rig.winch.status().fault or "")
+        ok, message = boat.daemon.haul_home("test", "operator request")
+        assert ok, message
+        finished = None
+        deadline = time.monotonic() + 10
+        while finished is None and (left := deadline - time.monotonic()) > 0:
+            got = await boat.port.receive(left)
+            if got is not None and isinstance(got.message, Finished):
+                finished = got.message
+        assert finished is not None and finished.depth_mm == 0
+        assert rig.winch.status().at_home and rig.drum.motor() == (0, 0.0)
+        boat.daemon.request_shutdown()
+        assert await asyncio.wait_for(boat.task, 10) == 0
