@@ -112,8 +112,6 @@ class Daemon(CastRunner):
         self._line = LineWatch(
             settings,
             write=self._write_again,
-            # The RC stick's jog is an operator's move: on the GPIO winch it may run while
-            # the witnesses disagree (the haul that can make them agree again).
             move_winch=lambda depth: hand_move(self._winch, depth) if self._winch else None,
             stop_winch=self._stop_motor,
             winch_status=self._winch_status,
