@@ -22,6 +22,7 @@ MODULES = [
     "status_flood",
     "sonde",
     "winch",
+    "storm",
     "flood",
     "web",
 ]

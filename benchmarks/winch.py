@@ -46,7 +46,7 @@ def _pin_went_low_at(pin: Any, after: float) -> float | None:
 
 async def _open(**cfg: Any) -> tuple[GpioWinch, MockWinchFactory, WinchGpioSettings]:
     settings = WinchGpioSettings.model_validate(
-        {"pin_factory": "mock", "stall_timeout_s": 600, "ramp_s": 0, **cfg}
+        {"pin_factory": "mock", "stall_timeout_s": 10, "ramp_s": 0, **cfg}
     )
     factory = MockWinchFactory({settings.enable_pin})
     winch = GpioWinch(settings, open_devices(settings, factory), max_line_m=20, clock=SystemClock())

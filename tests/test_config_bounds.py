@@ -55,6 +55,30 @@ from tests.test_config import problems, write
             "[store]\ntelemetry_rate_hz = 0",
             "store.telemetry_rate_hz = 0 ({src}): must be at least 0.1",
         ),
+        (
+            "[winch.gpio]\nstall_timeout_s = 1e9",
+            "winch.gpio.stall_timeout_s = 1000000000.0 ({src}): must be at most 10",
+        ),
+        (
+            "[winch.gpio]\novercurrent_s = 6",
+            "winch.gpio.overcurrent_s = 6 ({src}): must be at most 5",
+        ),
+        (
+            "[winch.gpio]\nhome_margin_s = 121",
+            "winch.gpio.home_margin_s = 121 ({src}): must be at most 120",
+        ),
+        (
+            "[winch.gpio]\nloop_watchdog_s = 6",
+            "winch.gpio.loop_watchdog_s = 6 ({src}): must be at most 5",
+        ),
+        (
+            "[winch.gpio]\nswitch_settle_s = 3",
+            "winch.gpio.switch_settle_s = 3 ({src}): must be at most 2",
+        ),
+        (
+            "[winch.gpio]\nswitch_settle_s = 0",
+            "winch.gpio.switch_settle_s = 0 ({src}): must be at least 0.01",
+        ),
     ],
 )
 def test_periods_and_durations_have_floors_and_ceilings(

@@ -603,3 +603,37 @@ def test_a_reader_that_leaves_mid_cast_does_not_strand_the_probe(tmp_path: Path)
     assert events[-1] == "cc-daemon stopped"
     with JournalReader(db) as reader:
         assert [c.outcome for c in reader.casts()] == ["completed"]
+
+
+async def test_a_switch_stuck_closed_on_the_mock_drum_halts_the_survey_honestly(
+    tmp_path: Path,
+) -> None:
+    gpio_mock = Settings.model_validate(
+        {"winch": {"backend": "gpio", "gpio": {"pin_factory": "mock"}}}
+    )
+    quick = Pace(
+        "quick",
+        frame_period_s=0.25,
+        boat_speed_m_s=300.0,
+        winch_speed_m_s=1.0,
+        cast={"bottom_dwell_s": 0.5, "max_duration_s": 3.0, "target_depth_m": 2.0},
+        finish_margin_s=3.0,
+    )
+    code, text, _ = await _simulate(
+        tmp_path, stations=2, pace=quick, settings=gpio_mock, winch_fault="switch-stuck"
+    )
+    assert code == 4, text  # main's stranded survey: SURVEY HALTED, exit status 4
+    assert "--winch-fault switch-stuck" in text.splitlines()[0]
+    assert "witnesses disagree" in text
+    assert "stranded: R-L x" in _row(text, "S1")
+    assert "← R-F" not in text
+    assert "SURVEY HALTED: probe stranded at S1, fault reported to the autopilot" in text
+    [(outcome, _planned, reached)] = _casts(tmp_path)
+    assert outcome == "unfinished" and reached is not None and reached < 1.0
+
+
+def test_a_winch_fault_needs_the_mock_drum(capsys: pytest.CaptureFixture[str]) -> None:
+    from cc_daemon.cli.app import main
+
+    assert main(["--simulate", "--winch-fault", "snag"]) == 2
+    assert "--winch-fault snag: applies only with --winch gpio-mock" in capsys.readouterr().err

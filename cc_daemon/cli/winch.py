@@ -87,13 +87,15 @@ def _line(winch: Any) -> str:
     parts = [
         f"line out {winch.line_m:7.3f} m",
         f"count {winch.pulse_count:5d}",
-        f"switch {'closed' if status.at_home else 'open'}",
+        f"switch {'closed' if winch.switch_closed else 'open'}",
     ]
     current, supply = winch.motor_current_a(), winch.supply_v()
     if current is not None:
         parts.append(f"current {current:5.2f} A")
     if supply is not None:
         parts.append(f"supply {supply:5.2f} V")
+    if status.at_home:
+        parts.append("home (count and switch agree)")
     if status.fault:
         parts.append(f"FAULT: {status.fault}")
     return "  ".join(parts)

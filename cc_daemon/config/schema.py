@@ -79,6 +79,9 @@ class WinchSimSettings(BaseModel):
     speed_m_s: _Positive = 0.25
     stall_at_m: Annotated[_Positive | None, BeforeValidator(_empty_is_none)] = None
     fail_home: bool = False
+    # The mock drum's sensor fault (--winch gpio-mock --winch-fault NAME): a switch
+    # stuck closed, a snag at 1 m, the current sensor's ADC at full scale.
+    drum_fault: Literal["none", "switch-stuck", "snag", "adc-garbage", "pulse-storm"] = "none"
     # Outside --simulate a simulated winch would answer a real autopilot for a probe
     # that never moves: it runs only when this says so in so many words.
     allow_outside_simulation: bool = False
@@ -109,6 +112,8 @@ class WinchGpioSettings(BaseModel):
     switch_pull: _Pull = "none"
     switch_active: _Level = "high"
     switch_debounce_s: Annotated[float, Field(ge=0, le=1)] = 0.002
+    # Home needs the switch closed this long as well as the count near zero.
+    switch_settle_s: Annotated[float, Field(ge=0.01, le=2)] = 0.2
     counter: Literal["pulse", "quadrature"] = "pulse"
     pulse_pin: _Bcm = 27
     encoder_b_pin: _Bcm = 22
@@ -117,11 +122,12 @@ class WinchGpioSettings(BaseModel):
     pulses_per_rev: Annotated[int, Field(ge=1)] = 2
     drum_diameter_m: _Positive = 0.09
     line_speed_m_s: _Positive = 0.25
-    stall_timeout_s: _Positive = 2.0
-    home_margin_s: _NonNegative = 10.0
+    # Safety times have physical upper bounds (docs/gpio-winch.md "Bounds").
+    stall_timeout_s: Annotated[float, Field(gt=0, le=10)] = 2.0
+    home_margin_s: Annotated[float, Field(ge=0, le=120)] = 10.0
     count_tolerance_m: _Positive = 0.5
     home_at_start: bool = True
-    loop_watchdog_s: Annotated[float, Field(ge=0.05, le=60)] = 1.0
+    loop_watchdog_s: Annotated[float, Field(ge=0.05, le=5)] = 1.0
     adc: bool = False
     adc_spi_device: Annotated[int, Field(ge=0, le=1)] = 0
     voltage_channel: Annotated[int, Field(ge=0, le=7)] = 0
@@ -132,7 +138,7 @@ class WinchGpioSettings(BaseModel):
     divider_r1_ohm: _Positive = 29400.0
     divider_r2_ohm: _Positive = 7400.0
     max_current_a: _Positive = 4.0
-    overcurrent_s: _Positive = 0.5
+    overcurrent_s: Annotated[float, Field(gt=0, le=5)] = 0.5
 
     def pins(self) -> dict[str, int]:
         """Every GPIO this configuration claims, by key (SPI0 too when the ADC is on)."""

@@ -47,6 +47,7 @@ from cc_daemon.core.winch.status import ApproachSpeed, Winch, WinchStatus, verif
 from cc_daemon.daemon.line_watch import LineWatch
 from cc_daemon.daemon.sonde import SondeDuty
 from cc_daemon.drivers.link import SerialLink
+from cc_daemon.drivers.winch.factory import hand_move
 from cc_daemon.ground.clock import Clock
 from cc_daemon.store import Journal
 from cc_daemon.store.interrupted import InterruptedCast
@@ -366,7 +367,9 @@ class CastRunner:
         _log.warning("operator: hauling the stranded probe in", peer=str(peer), reason=reason)
         self._journal_event("operator_haul_in", cast_id=cast.cast_id, peer=str(peer))
         try:
-            self._winch.move_to(0.0)
+            # An operator's haul: the GPIO winch takes it while its witnesses disagree
+            # (it is the haul that can make them agree again); others move as ever.
+            hand_move(self._winch, 0.0)
         except Exception as exc:
             return False, f"the winch refused: {type(exc).__name__}: {exc}"
         return True, "hauling the probe in: R-F goes once the winch verifies home"

@@ -66,7 +66,7 @@ from cc_daemon.daemon.simulators import NO_SIMULATORS, Simulators
 from cc_daemon.daemon.sonde import SondeDuty, make_sonde
 from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.drivers.link import SerialLink
-from cc_daemon.drivers.winch.factory import make_winch, prepare_winch
+from cc_daemon.drivers.winch.factory import hand_move, make_winch, prepare_winch
 from cc_daemon.ground.clock import Clock, SystemClock
 from cc_daemon.ground.logsetup import flush_rate_limited, output_loss
 from cc_daemon.store import Journal
@@ -116,7 +116,7 @@ class Daemon(CastRunner):
         self._line = LineWatch(
             settings,
             write=self._write_again,
-            move_winch=lambda depth: self._winch.move_to(depth) if self._winch else None,
+            move_winch=lambda depth: hand_move(self._winch, depth) if self._winch else None,
             stop_winch=self._stop_motor,
             winch_status=self._winch_status,
             journal_event=self._journal_event,

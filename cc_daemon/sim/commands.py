@@ -128,6 +128,16 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
         help="the simulated winch jams on the way home: no R-F, the autopilot gives up",
     )
     group.add_argument(
+        "--winch-fault",
+        choices=("switch-stuck", "snag", "adc-garbage", "pulse-storm"),
+        default="none",
+        metavar="NAME",
+        help="with --winch gpio-mock, a sensor fault on the mock drum: switch-stuck (closed: "
+        "no R-F, stranded), snag (the switch closes at 1 m: stranded), adc-garbage (the "
+        "current sensor at full scale: said once, casts go on), pulse-storm (the pulse pin "
+        "babbles from 1 m down: an encoder fault, stranded)",
+    )
+    group.add_argument(
         "--sonar-port",
         metavar="PATH",
         help="the autopilot reads a real Ping1D here (115200 8N1) instead of the simulated one",
@@ -139,6 +149,10 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def options_from_args(args: argparse.Namespace, settings: Settings | None) -> SimOptions:
+    winch = settings.winch if settings is not None else None
+    mock = winch is not None and winch.backend == "gpio" and winch.gpio.pin_factory == "mock"
+    if args.winch_fault != "none" and not mock:
+        raise ValueError(f"--winch-fault {args.winch_fault}: applies only with --winch gpio-mock")
     return SimOptions(
         stations=args.stations,
         seed=args.seed,
@@ -148,6 +162,7 @@ def options_from_args(args: argparse.Namespace, settings: Settings | None) -> Si
         drop_link_for=args.drop_link_for,
         winch_stall=args.winch_stall,
         winch_fail_home=args.winch_fail_home,
+        winch_fault=args.winch_fault,
         resend_m=args.resend_m,
         firmware=args.firmware,
         db=getattr(args, "db", None),

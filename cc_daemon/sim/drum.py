@@ -119,14 +119,22 @@ class _MockMCP3008(MockSPIDevice):  # type: ignore[misc]
             self.tx_word(round(fraction * 1023), 12)
 
 
+SNAG_AT_M = 1.0  # --winch-fault snag: the switch closes here on the way down
+STORM_AT_M = 1.0  # --winch-fault pulse-storm: the pulse pin babbles from here on
+STORM_PULSES_PER_STEP = 10  # a babbling pin: 10 pulses a 1 ms step, 10,000 a second
+
+
 @dataclass
 class DrumFaults:
     jam_at_m: float | None = None  # the drum stops turning here on the way out
     jam_in_at_m: float | None = None  # ... or here on the way in (a line caught on the way up)
     snag_at_m: float | None = None  # the switch closes here on the way out
     switch_stuck_open: bool = False  # the switch never closes
+    switch_stuck_closed: bool = False  # the switch never opens (a shorted wire)
     lose_every: int = 0  # every n-th pulse paying out is lost (a slipping line), 0 = none
     overcurrent_a: float | None = None  # the motor draws this whenever it runs
+    current_adc: float | None = None  # the current sensor's ADC stuck here (0..1): a bad sensor
+    storm_at_m: float | None = None  # past here going out, the pulse pin babbles from then on
 
 
 class SimulatedDrum:
@@ -232,6 +240,10 @@ class SimulatedDrum:
                     line = max(line, 0.0)  # the probe is up against the block
             self._line = line
             self.max_line_seen = max(self.max_line_seen, line)
+        storm = self.faults.storm_at_m
+        if storm is not None and self.max_line_seen >= storm:
+            for _ in range(STORM_PULSES_PER_STEP):  # a broken wire: pulses the drum never made
+                self._pulse(1)
         phase = math.floor(line / self.drum.metres_per_pulse + 1e-9)
         while phase != self._phase:
             step = 1 if phase > self._phase else -1
@@ -269,6 +281,8 @@ class SimulatedDrum:
             closed = True
         if self.faults.switch_stuck_open:
             closed = False
+        if self.faults.switch_stuck_closed:
+            closed = True
         if closed == self._switch_closed:
             return
         self._switch_closed = closed
@@ -288,6 +302,8 @@ class SimulatedDrum:
 
     def _adc_channel(self, channel: int) -> float:
         if channel == self.cfg.current_channel:
+            if self.faults.current_adc is not None:
+                return self.faults.current_adc
             return current_fraction(self._current, self.motor_current_a())
         if channel == self.cfg.voltage_channel:
             return self._divider.fraction(self.supply_v)
@@ -299,6 +315,13 @@ def mock_drum_for(settings: Settings) -> SimulatedDrum:
     on it too (--simulate --winch gpio-mock --winch-stall / --winch-fail-home)."""
     cfg = settings.winch.gpio
     sim = settings.winch.sim
-    faults = DrumFaults(jam_at_m=sim.stall_at_m, jam_in_at_m=0.5 if sim.fail_home else None)
+    faults = DrumFaults(
+        jam_at_m=sim.stall_at_m,
+        jam_in_at_m=0.5 if sim.fail_home else None,
+        switch_stuck_closed=sim.drum_fault == "switch-stuck",
+        snag_at_m=SNAG_AT_M if sim.drum_fault == "snag" else None,
+        current_adc=1.0 if sim.drum_fault == "adc-garbage" else None,
+        storm_at_m=STORM_AT_M if sim.drum_fault == "pulse-storm" else None,
+    )
     speed = cfg.line_speed_m_s / cfg.payout_duty
     return SimulatedDrum(SimulatedDrum.factory_for(cfg), cfg, full_speed_m_s=speed, faults=faults)

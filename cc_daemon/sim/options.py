@@ -65,6 +65,7 @@ class SimOptions:
     drop_link_for: float = 3.0
     winch_stall: bool = False
     winch_fail_home: bool = False
+    winch_fault: str = "none"  # the mock drum's sensor fault (--winch gpio-mock)
     resend_m: bool = False  # keep resending M during a cast (a flight plan holding the station)
     db: Path | None = None  # the journal; default ./simulate.db
     log_file: Path | None = None  # the daemon's JSON log lines; default beside the journal
@@ -143,6 +144,9 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
         sim["stall_at_m"] = STALL_AT_M
     if options.winch_fail_home:
         sim["fail_home"] = True
+    sim["drum_fault"] = options.winch_fault
+    if options.winch_fault == "adc-garbage":
+        gpio["adc"] = True  # the current sensor, to read garbage from
     base["cast"].update(pace.cast)
     base["store"]["path"] = str(options.db_path.absolute())
     if base["status"]["path"] is None:

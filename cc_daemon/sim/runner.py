@@ -63,6 +63,7 @@ def _headline(options: SimOptions, mission: Mission) -> str:
         f"--drop-link-at {options.drop_link_at:g}" if options.drop_link_at is not None else "",
         "--winch-stall" if options.winch_stall else "",
         "--winch-fail-home" if options.winch_fail_home else "",
+        f"--winch-fault {options.winch_fault}" if options.winch_fault != "none" else "",
         "--resend-m" if options.resend_m else "",
         f"--firmware {options.firmware}",
     ]

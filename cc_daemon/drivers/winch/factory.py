@@ -134,6 +134,17 @@ async def prepare_winch(winch: Winch, announce: Callable[[], None] | None = None
     # the simulated winch importing gpiozero (33 ms, 2 MiB) for an isinstance check.
     gpio = sys.modules.get("cc_daemon.drivers.winch.gpio")
     if gpio is not None and isinstance(winch, gpio.GpioWinch):
-        if not winch.at_home and announce is not None:
+        # The switch alone: a probe whose switch is open is surely down.
+        if not winch.switch_closed and announce is not None:
             announce()
         await winch.start_up()
+
+
+def hand_move(winch: Winch, depth_m: float) -> None:
+    """An operator's move (the RC stick's jog): the GPIO winch takes it even while its
+    witnesses disagree (docs/gpio-winch.md); any other backend moves as ever."""
+    gpio = sys.modules.get("cc_daemon.drivers.winch.gpio")  # see prepare_winch
+    if gpio is not None and isinstance(winch, gpio.GpioWinch):
+        winch.hand_move(depth_m)
+    else:
+        winch.move_to(depth_m)

@@ -8,9 +8,11 @@ docs/gpio-winch.md.
 Threads. gpiozero calls the pulse and switch callbacks on its own thread, and
 the loop watchdog runs on another. On those threads the only thing done to
 the motor is *stopping* it (at the target count, at the end of the line, at
-the switch), under the H-bridge's lock; everything else is handed to the event
-loop with `call_soon_threadsafe`. Starting the motor, the ramp, the safety
-checks, logging and journaling happen on the loop only.
+the switch, where the witnesses disagree), under the H-bridge's lock; everything
+else is handed to the event loop with `call_soon_threadsafe`. What "home" means
+(two witnesses: the count and the switch) is its base's, `home.HomeWitnessing`.
+Starting the motor, the ramp, the safety checks, logging and journaling happen
+on the loop only.
 
 It must never leave the motor running: `stop`, `close`, an exception in a
 tick, the loop going quiet (watchdog thread) and interpreter exit (atexit)
@@ -24,6 +26,7 @@ import atexit
 import contextlib
 import enum
 import math
+import sys
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -32,20 +35,28 @@ import structlog
 
 from cc_daemon.config import WinchGpioSettings
 from cc_daemon.core.errors import WinchFault
-from cc_daemon.core.winch.drum import CurrentSensor, Drum, VoltageDivider
+from cc_daemon.core.winch.drum import Drum
+from cc_daemon.core.winch.encoder import EncoderJudge, coast_allowance, max_pulse_rate
 from cc_daemon.core.winch.safety import Limits, MotionGuard
 from cc_daemon.core.winch.status import WinchStatus
+from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
 from cc_daemon.drivers.winch.devices import GpioDevices
+from cc_daemon.drivers.winch.home import HomeWitnessing
 from cc_daemon.drivers.winch.motor import Direction
+from cc_daemon.drivers.winch.sensing import MotorSensing
 from cc_daemon.drivers.winch.watchdog import LoopWatchdog
 from cc_daemon.ground.clock import Clock
 
 _log = structlog.get_logger("cc_daemon.winch.gpio")
 
+# The interpreter's thread switch interval while the winch is open: gpiozero's
+# callback thread (a pulse storm on a broken wire) may otherwise hold the GIL for
+# the default 5 ms each time, and the loop answers the autopilot late
+# (docs/performance.md). Restored at close.
+GIL_SWITCH_S = 0.0005
 TICK_S = 0.05  # safety checks, ramp steps and watchdog feeding while the motor runs
 RAMP_FLOOR = 0.3  # the soft start begins at this fraction of the duty
 APPROACH_FRACTION = 0.5  # within approach_m of the target the duty is halved
-SWITCH_SETTLE_S = 0.1  # a switch that opens by itself must stay open this long to be news
 
 EventSink = Callable[..., None]  # (kind, **detail): the journal's record_event
 
@@ -55,7 +66,7 @@ class _Goal(enum.Enum):
     HOME = "home"  # haul in until the limit switch closes
 
 
-class GpioWinch:
+class GpioWinch(HomeWitnessing):
     def __init__(
         self,
         cfg: WinchGpioSettings,
@@ -77,9 +88,11 @@ class GpioWinch:
         self.max_line_m = max_line_m
         # Rounded down: the last pulse allowed is never past the end of the line.
         self._max_count = math.floor(max_line_m / self.drum.metres_per_pulse + 1e-9)
-        self._current = CurrentSensor(cfg.adc_vref_v, cfg.current_zero_v, cfg.current_v_per_a)
-        self._divider = VoltageDivider(cfg.adc_vref_v, cfg.divider_r1_ohm, cfg.divider_r2_ohm)
+        self._sensing = MotorSensing(cfg, devices, self._record)
         self._limits = Limits(cfg.stall_timeout_s, cfg.max_current_a, cfg.overcurrent_s)
+        self._witnesses = Witnesses(
+            cfg.count_tolerance_m, cfg.switch_settle_s, LEAVE_PULSES * self.drum.metres_per_pulse
+        )
         self._changed = asyncio.Event()
         # Shared with gpiozero's thread, under _lock.
         self._lock = threading.Lock()
@@ -88,22 +101,46 @@ class GpioWinch:
         # count + 1 pulses, so the line at the last edge depends on its direction.
         self._count = 0
         self._last_step = 1
-        self._count_known = True  # False while homing from an unknown position
+        # False until the switch has set it (start-up with it open, homing from an
+        # unknown position): a count that means nothing witnesses nothing.
+        self._count_known = bool(devices.switch.is_active)
         self._goal: _Goal | None = None
         self._target_count = 0
         self._last_direction = Direction.PAY_OUT  # a lone pulse with no command: line going out
+        self._switch_now = bool(devices.switch.is_active)  # as the last edge left it
+        mpp = self.drum.metres_per_pulse
+        self._encoder = EncoderJudge(
+            max_pulses_s=max_pulse_rate(
+                cfg.line_speed_m_s, min(cfg.payout_duty, cfg.haulin_duty), mpp
+            ),
+            coast_pulses=coast_allowance(cfg.count_tolerance_m, mpp),
+        )
+        self._encoder_bad: str | None = None  # pulses that cannot be true: not counted
+        self._ignored = 0  # pulses not counted since the encoder fault
         # Loop side only.
         self._fault: str | None = None
         self._homed = False
+        # The second witness: since when the switch has been closed, whether both
+        # witnesses have agreed on home since, and a disagreement standing until
+        # they agree again (docs/gpio-winch.md "Home has two witnesses").
+        self._closed_since: float | None = None
+        self._verified = False
+        self._distrust: str | None = None
+        self._settle: asyncio.TimerHandle | None = None
+        self._ignored_told = 0
+        self._summary: asyncio.TimerHandle | None = None
         self._guard: MotionGuard | None = None
         self._started_at = 0.0
         self._duty = 0.0
+        self._approach_duty = 0.0
         self._tick: asyncio.TimerHandle | None = None
         self._arrived_count: int | None = None  # where an arrival stop left the count
         self._told_open_at_zero = False
         self._closed = False
         self.overshoots: list[int] = []  # pulses past the target after each arrival
         self._watchdog = LoopWatchdog(cfg.loop_watchdog_s, self._watchdog_trip)
+        self._switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval, GIL_SWITCH_S))
         atexit.register(self._emergency_stop)
         devices.switch.when_activated = self._switch_closed_thread
         devices.switch.when_deactivated = self._switch_opened_thread
@@ -112,29 +149,44 @@ class GpioWinch:
         if devices.encoder is not None:
             devices.encoder.when_rotated_clockwise = self._step_out_thread
             devices.encoder.when_rotated_counter_clockwise = self._step_in_thread
-        if devices.switch.is_active:
-            self._homed = True
+        if self._switch_now:
+            self._closed_since = clock.monotonic()
+            self._schedule_settle(self._closed_since)
 
     # ------------------------------------------------------------ the Winch interface
 
     def status(self) -> WinchStatus:
         self._changed.clear()
+        running = self._bridge.direction is not Direction.STOPPED
         return WinchStatus(
             depth_m=max(0.0, self.line_m),
-            moving=self._bridge.direction is not Direction.STOPPED,
+            # Settling at the switch is still arriving: home is not yet verified.
+            moving=running or self._settle is not None,
             at_home=self.at_home,
-            fault=self._fault,
+            # A standing disagreement is the fault, except while an operator's
+            # hand haul runs (it must not stop the haul that can clear it).
+            fault=self._fault or (self._distrust if not running else None),
         )
 
-    def move_to(self, depth_m: float) -> None:
+    def move_to(self, depth_m: float, *, slow: bool = False) -> None:
         if self._closed:
             raise WinchFault("the GPIO winch is closed")
+        if self._distrust is not None:
+            raise WinchFault(
+                f"{self._distrust}; the winch moves only by hand (P-U, `cc-daemon winch`) "
+                "until both witnesses agree on home"
+            )
         if not self._homed:
             raise WinchFault(
                 "winch not homed: the limit switch has not closed since start-up; "
                 "haul the probe up by hand or run `cc-daemon winch home`"
             )
-        self._begin(min(max(depth_m, 0.0), self.max_line_m))
+        self._begin(min(max(depth_m, 0.0), self.max_line_m), slow=slow)
+
+    def move_slowly_to(self, depth_m: float) -> None:
+        """`move_to` at the approach duty for the whole motion (core.winch.status's
+        ApproachSpeed): a blind cast pays out with the bed anywhere below."""
+        self.move_to(depth_m, slow=True)
 
     def stop(self) -> None:
         self._halt()
@@ -154,7 +206,10 @@ class GpioWinch:
         try:
             self._halt()
         finally:
+            if self._summary is not None:
+                self._summary.cancel()
             self._watchdog.close()
+            sys.setswitchinterval(self._switch_interval)
             atexit.unregister(self._emergency_stop)
             try:
                 self._dev.close()
@@ -163,14 +218,6 @@ class GpioWinch:
                     self._on_close()
 
     # ------------------------------------------------------------ more than a Winch
-
-    @property
-    def at_home(self) -> bool:
-        return bool(self._dev.switch.is_active)
-
-    @property
-    def homed(self) -> bool:
-        return self._homed
 
     @property
     def line_m(self) -> float:
@@ -187,50 +234,47 @@ class GpioWinch:
             return self._count
 
     def motor_current_a(self) -> float | None:
-        if self._dev.current is None:
-            return None
-        return self._current.amps(float(self._dev.current.value))
+        """The current sensor's reading as it is (trusted or not: see `sensor_fault`)."""
+        return self._sensing.raw_current_a()
+
+    @property
+    def sensor_fault(self) -> str | None:
+        """The current sensor's fault, once found (overcurrent then by pulses alone)."""
+        return self._sensing.fault
 
     def supply_v(self) -> float | None:
-        if self._dev.voltage is None:
-            return None
-        return self._divider.volts(float(self._dev.voltage.value))
+        return self._sensing.supply_v()
 
-    async def start_up(self) -> None:
-        """Make sure the probe is home before casts are accepted (READY comes after)."""
-        if self.at_home:
-            self._zero_at_switch()
-            self._homed = True
-            _log.info("winch at home: limit switch closed at start")
-            return
-        if not self._cfg.home_at_start:
-            self._fault = (
-                "not homed: the limit switch was open at start and home_at_start is false; "
-                "casts are refused until the probe is homed (by hand or `cc-daemon winch home`)"
-            )
-            _log.error("winch not homed: casts refused", reason=self._fault)
-            self._record("winch_fault", fault=self._fault)
-            return
-        await self.home(reason="limit switch open at start: the probe may be down")
+    def hand_move(self, depth_m: float) -> None:
+        """An operator's move (the RC stick): like `jog`, allowed while the witnesses
+        disagree, since an operator's haul home is what can make them agree again."""
+        line = self.line_m
+        if depth_m <= 0.0:
+            self.jog(Direction.HAUL_IN)
+        elif depth_m > line:
+            self.jog(Direction.PAY_OUT, by_m=depth_m - line)
+        else:
+            self.jog(Direction.HAUL_IN, by_m=line - depth_m)
 
-    async def home(self, *, reason: str = "operator request") -> bool:
-        """Haul in until the limit switch closes; True once home. The count means
-        nothing until then (the probe was moved, or the power cut)."""
+    def _encoder_faulted(self, reason: str) -> None:
+        self._distrusted(f"encoder fault: {reason}; the count is no longer trusted")
+        self._summarise_ignored()
+
+    def _summarise_ignored(self) -> None:
+        """While the encoder is faulted: once a second at most, the pulses not counted."""
+        self._summary = None
         with self._lock:
-            self._count_known = self.at_home
-        _log.warning("winch homing: hauling in until the limit switch closes", reason=reason)
-        self._record("winch_homing", reason=reason, counted_line_m=round(self.line_m, 3))
-        self._begin(0.0, homing=True)
-        while self._bridge.direction is not Direction.STOPPED:
-            self.status()
-            await self.wait_change(TICK_S * 4)
-        if self.at_home:
-            self._homed = True
-            _log.info("winch homed", took_s=round(self._clock.monotonic() - self._started_at, 2))
-            self._record("winch_homed", reason=reason)
-            return True
-        _log.critical("winch homing failed: the probe is not home", fault=self._fault)
-        return False
+            ignored, bad = self._ignored, self._encoder_bad
+        if ignored > self._ignored_told:
+            _log.warning(
+                "winch encoder fault: pulses not counted",
+                pulses=ignored - self._ignored_told,
+                since_fault=ignored,
+                fault=bad,
+            )
+            self._ignored_told = ignored
+        if bad is not None and not self._closed:
+            self._summary = self._loop.call_later(1.0, self._summarise_ignored)
 
     def jog(self, direction: Direction, *, by_m: float | None = None) -> None:
         """Run the motor by hand (calibration): pay out or haul in until `stop`, or
@@ -241,6 +285,12 @@ class GpioWinch:
         self._halt()
         self._fault = None
         if direction is Direction.STOPPED:
+            self._changed.set()
+            return
+        if direction is Direction.HAUL_IN and self.switch_closed and self._encoder_bad:
+            # Neither witness could stop it: the switch is already closed and the
+            # count is not trusted. Nothing would keep it off the block.
+            _log.error("jog refused: hauling in with the switch closed and the encoder faulted")
             self._changed.set()
             return
         with self._lock:
@@ -254,7 +304,7 @@ class GpioWinch:
 
     # ------------------------------------------------------------ starting a motion
 
-    def _begin(self, target_m: float, *, homing: bool = False) -> None:
+    def _begin(self, target_m: float, *, homing: bool = False, slow: bool = False) -> None:
         self._halt()
         self._fault = None
         self._changed.set()
@@ -262,8 +312,14 @@ class GpioWinch:
         with self._lock:
             count = self._edge()
         if target_m == 0.0:
-            if self.at_home:
-                return  # already there: nothing to run
+            if self.switch_closed and self._count_known:
+                # Nothing to run: home if the count agrees (once settled), else a fault.
+                reason = self._witnesses.disagreement(self.line_m, True, 0)
+                if reason is not None:
+                    self._distrusted(reason)
+                elif not self._verified and self._settle is None:
+                    self._schedule_settle(self._closed_since or self._clock.monotonic())
+                return
             with self._lock:
                 self._goal = _Goal.HOME
             self._start_motor(Direction.HAUL_IN, None, homing=homing)
@@ -274,13 +330,17 @@ class GpioWinch:
             self._goal = _Goal.TARGET
             self._target_count = min(target, self._max_count)
         direction = Direction.PAY_OUT if target > count else Direction.HAUL_IN
-        self._start_motor(direction, None, homing=False)
+        self._start_motor(direction, None, homing=False, slow=slow)
 
-    def _start_motor(self, direction: Direction, duty: float | None, *, homing: bool) -> None:
+    def _start_motor(
+        self, direction: Direction, duty: float | None, *, homing: bool, slow: bool = False
+    ) -> None:
         cfg = self._cfg
+        self._sensing.zero_check()  # the motor is off: a sensor far from 0 A is faulty
         now = self._clock.monotonic()
         nominal = cfg.payout_duty if direction is Direction.PAY_OUT else cfg.haulin_duty
-        self._duty = duty or nominal
+        self._approach_duty = nominal * APPROACH_FRACTION  # a slow motion's whole duty
+        self._duty = self._approach_duty if slow else (duty or nominal)
         deadline = None
         if self._goal is _Goal.HOME:
             # Line out / haul speed + margin; from an unknown position (start-up
@@ -293,6 +353,7 @@ class GpioWinch:
         self._told_open_at_zero = False
         with self._lock:
             self._last_direction = direction
+            self._encoder.motor_started()
         first = self._duty if cfg.ramp_s == 0 else self._duty * RAMP_FLOOR
         self._watchdog.arm()
         self._bridge.start(direction, first)
@@ -368,7 +429,7 @@ class GpioWinch:
             return
         self._watchdog.feed()
         now = self._clock.monotonic()
-        fault = guard.check(now, self.motor_current_a(), self.line_m)
+        fault = guard.check(now, self._sensing.current_a(motor_on=True), self.line_m)
         if fault is not None:
             self._fail(fault, peak_current_a=round(guard.peak_current_a, 3))
             return
@@ -386,7 +447,7 @@ class GpioWinch:
         # The last approach_m, and at least the last pulse: a count cannot see closer.
         approach = max(1, math.ceil(self._cfg.approach_m / self.drum.metres_per_pulse))
         if to_target and remaining <= approach:
-            duty = min(duty, self._duty * APPROACH_FRACTION)
+            duty = min(duty, self._approach_duty)
         self._bridge.set_duty(duty)
 
     # ------------------------------------------------------------ gpiozero's thread
@@ -407,16 +468,41 @@ class GpioWinch:
 
     def _count_thread(self, step: int) -> None:
         stop = None
+        now = self._clock.monotonic()
+        with self._lock:
+            if self._encoder_bad is not None:
+                self._ignored += 1  # a storm: the least possible, and nothing to the loop
+                return
+            bad = self._encoder.pulse(now, self._bridge.direction is not Direction.STOPPED)
+            if bad is not None:
+                self._encoder_bad = bad
+                self._bridge.stop()
+        if bad is not None:
+            self._tell_loop(self._encoder_faulted, bad)
+            return
         with self._lock:
             self._count += step
             self._last_step = step
             count = self._edge()
             running = self._bridge.direction
+            closed = self._switch_now
             if running is Direction.PAY_OUT and count >= self._max_count:
                 stop = "end of line"
-            elif self._goal is _Goal.TARGET and (
-                (running is Direction.PAY_OUT and count >= self._target_count)
-                or (running is Direction.HAUL_IN and count <= self._target_count)
+            elif running is not Direction.STOPPED and self._count_known:
+                # The witnesses, at every edge of a motion: a switch still closed
+                # well into a descent, or hauling on past zero with it open.
+                if running is Direction.HAUL_IN and closed and self._count <= 0:
+                    stop = "home"  # the switch was already closed: the count says we are in
+                else:
+                    stop = self._witnesses.disagreement(
+                        self.drum.line_m(count), closed, int(running)
+                    )
+            if stop is None and (
+                self._goal is _Goal.TARGET
+                and (
+                    (running is Direction.PAY_OUT and count >= self._target_count)
+                    or (running is Direction.HAUL_IN and count <= self._target_count)
+                )
             ):
                 stop = "arrived"
             if stop is not None:
@@ -425,6 +511,7 @@ class GpioWinch:
 
     def _switch_closed_thread(self) -> None:
         with self._lock:
+            self._switch_now = True
             running = self._bridge.direction
             if running is Direction.PAY_OUT and self._edge() <= 0:
                 # Still within the first pulse of leaving the block: the switch
@@ -435,6 +522,8 @@ class GpioWinch:
         self._tell_loop(self._switch_seen, True, running)
 
     def _switch_opened_thread(self) -> None:
+        with self._lock:
+            self._switch_now = False
         self._tell_loop(self._switch_seen, False, self._bridge.direction)
 
     def _tell_loop(self, callback: Callable[..., None], *args: Any) -> None:
@@ -453,6 +542,12 @@ class GpioWinch:
             )
         elif stop == "arrived":
             self._arrived(count)
+        elif stop == "home":
+            self._halt()
+            _log.info("winch home by the count, the limit switch already closed")
+            self._schedule_settle(self._closed_since or self._clock.monotonic())
+        elif stop is not None:
+            self._distrusted(stop)
         elif self._arrived_count is not None and self._bridge.direction is Direction.STOPPED:
             # A pulse after an arrival stop: the drum coasted on.
             extra = abs(count - self._arrived_count)
@@ -484,66 +579,6 @@ class GpioWinch:
         self._arrived_count = count
         self.overshoots.append(0)
         _log.debug("winch arrived", line_m=round(self.drum.line_m(count), 3))
-
-    def _switch_seen(self, closed: bool, running: Direction) -> None:
-        if not closed:
-            if running is Direction.STOPPED and self._homed:
-                self._loop.call_later(SWITCH_SETTLE_S, self._opened_while_stopped)
-            self._changed.set()
-            return
-        line = self.line_m
-        self._zero_at_switch()
-        self._homed = True
-        if running is Direction.PAY_OUT:
-            self._fail(
-                f"limit switch closed while paying out at {line:.2f} m counted "
-                "(a snag or a wiring fault); the motor was stopped",
-                counted_line_m=round(line, 3),
-            )
-            return
-        if running is Direction.HAUL_IN:
-            self._halt()
-            _log.info("winch home: limit switch closed", counted_line_m=round(line, 3))
-        self._changed.set()
-
-    def _opened_while_stopped(self) -> None:
-        if self.at_home or self._bridge.direction is not Direction.STOPPED:
-            return  # a bounce, or a motion began
-        # Nobody is paying out, yet the probe left the block: it slipped, or someone
-        # pulled it. The next station brings it home first (a recovery cast).
-        _log.warning(
-            "winch count and limit switch disagree: the switch opened with the motor stopped",
-            counted_line_m=round(self.line_m, 3),
-            switch="open",
-        )
-
-    def _zero_at_switch(self) -> None:
-        with self._lock:
-            count = self._count  # at the switch the line is in [0, 1) pulses: count 0
-            self._count = 0
-            self._last_step = 1
-            known, self._count_known = self._count_known, True
-        line = self.drum.line_m(count)
-        if count == 0:
-            return
-        if not known:
-            _log.info("winch count set at the switch after homing from an unknown position")
-            return
-        if abs(line) > self._cfg.count_tolerance_m:
-            _log.warning(
-                "winch count and limit switch disagree: count zeroed at the switch",
-                counted_line_m=round(line, 3),
-                switch="closed",
-                tolerance_m=self._cfg.count_tolerance_m,
-            )
-        else:
-            _log.info("winch count zeroed at the switch", counted_line_m=round(line, 3))
-        self._record(
-            "winch_count_corrected",
-            counted_line_m=round(line, 3),
-            pulses=count,
-            corrected_to_m=0.0,
-        )
 
     def _record(self, kind: str, **detail: Any) -> None:
         if self._record_sink is None:
