@@ -24,6 +24,7 @@ MODULES = [
     "winch",
     "storm",
     "flood",
+    "sonar_stream",
     "web",
 ]
 
