@@ -176,9 +176,11 @@ def test_a_full_store_keeps_rows_in_memory_until_there_is_room(tmp_path: Path) -
         assert query(db, "SELECT count(*) FROM samples") == [(5,)]
         assert query(db, "SELECT outcome FROM casts") == [("completed",)]
         disk.full = False  # room again: the next reconnect sets no cap
-        wait_for(lambda: journal.health().pending_rows == 0)
+        # Every row, then the episode's event, which the writer records on its own
+        # thread after the pass that succeeded (wait for both before closing).
+        wait_for(lambda: journal.health().rows_written == 3010)
         health = journal.health()
-        assert health.writable
+        assert health.writable and health.pending_rows == 0
         assert health.last_error is None  # the status says what is true now
     finally:
         journal.close()
