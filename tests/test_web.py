@@ -337,6 +337,17 @@ async def test_latest_is_the_sondes_last_reading_with_its_age(
     from cc_daemon.cli.web import journaldata
 
     assert journaldata.latest(bare, clock.wall())["sonde"] is None
+    assert journaldata.latest(bare, clock.wall())["sonar"] is None
+    # The daemon's own sonar: its last reading, an impossible one flagged, not hidden.
+    plain = Journal(bare, monotonic=clock.monotonic, wall=clock.wall)
+    plain.open()
+    plain.record_sonar("/dev/ttyPING", 4200, 96)
+    clock.advance(0.25)
+    plain.record_sonar("/dev/ttyPING", 4294967295, 100)
+    plain.close()
+    sonar = journaldata.latest(bare, clock.wall())["sonar"]
+    assert sonar["distance_m"] == 4294967.295 and sonar["valid"] is False
+    assert sonar["confidence_pct"] == 100 and sonar["port"] == "/dev/ttyPING"
 
 
 async def test_what_pages_ask_on_a_timer_is_read_once_for_all_of_them(

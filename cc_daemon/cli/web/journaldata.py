@@ -110,14 +110,28 @@ LATEST_WINDOW_S = 600.0  # the sonde's last reading is looked for in the survey'
 
 
 def latest(path: Path, now_wall_s: float) -> dict[str, Any]:
-    """The sonde's last reading of the latest survey, with its age (None: none)."""
+    """The sonde's and the daemon's own sonar's last readings in the latest survey,
+    each with its age (None: none in its last LATEST_WINDOW_S)."""
     with _open(path) as reader:
         survey = reader.select_survey("latest")
         if survey is None:
-            return {"survey": None, "sonde": None}
-        found = reader.sonde_samples(since=survey.end_wall_s - LATEST_WINDOW_S)
+            return {"survey": None, "sonde": None, "sonar": None}
+        since = survey.end_wall_s - LATEST_WINDOW_S
+        found = reader.sonde_samples(since=since)
+        pings = reader.sonar_readings(since=since)
+    sonar = None
+    if pings:
+        ping = pings[-1]
+        sonar = {
+            "wall_s": ping.wall_s,
+            "age_s": round(now_wall_s - ping.wall_s, 1),
+            "port": ping.port,
+            "distance_m": ping.distance_mm / 1000.0,
+            "confidence_pct": ping.confidence_pct,
+            "valid": ping.valid,  # stored as it came; an impossible one is flagged
+        }
     if not found:
-        return {"survey": survey.id, "sonde": None}
+        return {"survey": survey.id, "sonde": None, "sonar": sonar}
     last = found[-1]
     reading = {
         "wall_s": last.wall_s,
@@ -130,4 +144,4 @@ def latest(path: Path, now_wall_s: float) -> dict[str, Any]:
         "simulated": last.simulated,
         "values": last.values,
     }
-    return {"survey": survey.id, "sonde": _clean(reading)}
+    return {"survey": survey.id, "sonde": _clean(reading), "sonar": sonar}

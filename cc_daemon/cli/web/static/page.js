@@ -6,6 +6,7 @@ const NS = "http://www.w3.org/2000/svg";
 const POLL_MS = 1000;
 const live = { cast: null, points: [] };  // the running cast's [wall s, depth m]
 let latestSonde = null;  // a card: the sonde's last reading, from the journal
+let latestSonar = null;  // a card: the daemon's own sonar's last reading, from the journal
 let chosenSurvey = null, chosenCast = null;  // a late answer for an earlier choice is dropped
 
 function el(tag, attrs, text) {
@@ -97,6 +98,7 @@ function renderStatus(doc) {
       Object.entries(doc[name])));
   }
   if (latestSonde) summary.push(latestSonde);
+  if (latestSonar) summary.push(latestSonar);
   $("#summary").replaceChildren(...summary);
   const all = [];
   for (const [name, section] of Object.entries(doc)) {
@@ -272,10 +274,15 @@ function profilePlot(name, pts) {
   return fig;
 }
 
-// The sonde's last reading is in the journal, not the status: every 5 s is enough.
+// The sonde's and the sonar's last readings are in the journal, not the status:
+// every 5 s is enough.
 async function pollSonde() {
   try {
-    const s = (await getJSON("/api/latest")).sonde;
+    const got = await getJSON("/api/latest");
+    const p = got.sonar;
+    latestSonar = p ? card("Sonar (last reading)", [["age s", p.age_s], ["distance m", p.distance_m],
+      ["confidence %", p.confidence_pct], ["valid", p.valid]], !p.valid) : null;
+    const s = got.sonde;
     if (!s) { latestSonde = null; return; }
     const rows = [["age s", s.age_s], ["status", s.status], ["depth m", s.depth_m]];
     for (const [k, v] of Object.entries(s.values || {})) if (v !== null && k !== "depth") rows.push([k, v]);
