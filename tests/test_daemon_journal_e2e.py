@@ -84,7 +84,7 @@ async def test_a_store_that_turns_read_only_stops_neither_casts_nor_replies(
         with sqlite3.connect(f"file:{journal}?mode=ro", uri=True) as db:
             assert db.execute("SELECT COUNT(*) FROM casts").fetchone() == (0,)
     # The journal kept the rows and writes them once it can.
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 20
     rows: list[tuple[object, ...]] = []
     while time.monotonic() < deadline:
         if journal.exists():
@@ -96,7 +96,9 @@ async def test_a_store_that_turns_read_only_stops_neither_casts_nor_replies(
                     ).fetchall()
             except sqlite3.OperationalError:
                 rows = []
-            if rows:
+            # The backlog goes in over a few passes (spilled rows replayed first):
+            # wait for the cast's end, not just its start.
+            if rows and rows[0][0] == "completed":
                 break
         await asyncio.sleep(0.2)
     assert rows and rows[0][0] == "completed" and int(rows[0][1]) >= 8  # type: ignore[call-overload]

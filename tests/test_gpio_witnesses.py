@@ -158,7 +158,12 @@ async def test_a_failed_start_up_homing_says_so_in_the_words_mains_rules_read() 
         faults.switch_stuck_open = False
         rig.winch.jog(Direction.HAUL_IN)
         await rig.settle()
-        status = rig.winch.status()
+        # Home once the switch has stayed closed for its settle time (0.2 s).
+        for _ in range(60):
+            status = rig.winch.status()
+            if verified_home(status):
+                break
+            await asyncio.sleep(0.05)
         assert status.fault is None and verified_home(status) and not refuses_casts(status)
 
 
