@@ -283,3 +283,21 @@ def test_repeated_errors_are_rate_limited_never_silenced(monkeypatch: pytest.Mon
         ("journal buffer full", None),
         ("journal write failed", 4),
     ]
+
+
+def test_an_episode_that_ends_at_close_is_journaled_too(tmp_path: Path) -> None:
+    # The disk has room again just as the daemon stops: the writer's last pass,
+    # at close, writes the backlog and ends the episode; its event goes in too.
+    db = tmp_path / "j.db"
+    journal, disk = full_journal(db)
+    try:
+        journal.open()
+        for i in range(3000):
+            journal.record_fix(FIX._replace(timestamp_s=i))
+        wait_for(lambda: journal.health().write_errors > 0)
+        disk.full = False
+    finally:
+        journal.close()  # at once: no retry pass came between
+    assert journal.health().dropped_rows == 0
+    kinds = [kind for (kind,) in query(db, "SELECT kind FROM events")]
+    assert kinds == ["journal_unwritable"]

@@ -22,12 +22,10 @@ after every transaction; below `FIX_RESERVE_BYTES` fixes wait in memory.
 
 When writing fails the rows stay buffered, the error is logged at most every
 `LOG_INTERVAL_S` with a count, and the writer retries every `RETRY_INTERVAL_S`.
-A file that can never be used (corrupt, another program's, a newer version's)
-is left untouched for a fresh one beside it (`<name>-<UTC stamp>.db`, else in
-the state directory, else the temporary one; `health().path` names it). Rows
-unwritten at close are saved as JSON lines (`<name>-unwritten-<UTC
-stamp>.jsonl`) beside the journal or in the state directory, never in the
-temporary directory (PrivateTmp wipes it) nor under /dev, /proc or /sys.
+A file that can never be used (corrupt, another program's, a newer version's) is
+left untouched for a fresh one beside it (`health().path` names it). Rows unwritten
+at close go to a JSON-lines spill file (`spill.py`), never in the temporary
+directory (PrivateTmp wipes it) nor under /dev, /proc or /sys.
 """
 
 from __future__ import annotations
@@ -61,8 +59,7 @@ from cc_daemon.store.spillover import MAX_TRANSACTION_ROWS, SpillOver
 FLUSH_INTERVAL_S = 1.0
 FULL_SYNC_INTERVAL_S = 5.0
 RETRY_INTERVAL_S = 1.0
-# The writer is a thread, so waiting on a lock blocks nobody else; half a
-# second rides out a reader's checkpoint without piling up retries.
+# A lock wait blocks nobody else (a thread); 0.5 s rides out a reader's checkpoint.
 BUSY_TIMEOUT_S = 0.5
 # Below this much free space the WAL is checkpointed and truncated after every
 # transaction (it normally grows to some 4 MB first): a WAL that has taken the
@@ -216,7 +213,8 @@ class BufferedWriter(SpillOver):
         self.close()
 
     def _append(self, row: Row) -> None:
-        if self._closed:
+        # The writer's own rows (an episode's end, at its last pass) go in: one pass more.
+        if self._closed and threading.current_thread() is not self._thread:
             self._errors.error("closed", "journal is closed; row not recorded", kind=row[0])
             return
         if self._buffer_row(row) and not self._wake.is_set():
@@ -266,6 +264,7 @@ class BufferedWriter(SpillOver):
 
     def _writer_loop(self) -> None:
         deadline = time.monotonic() + FLUSH_INTERVAL_S
+        extra_pass = False
         while True:
             stopping = False
             try:
@@ -285,6 +284,9 @@ class BufferedWriter(SpillOver):
                 if not stopping:
                     self._stop.wait(RETRY_INTERVAL_S)  # and must not spin either
             if stopping:
+                if self._urgent and not self._failing and not extra_pass:  # rows this pass made
+                    extra_pass = True
+                    continue
                 break
 
     def _writer_pass(self) -> None:
