@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import structlog
 
 from cc_daemon.config.statuspaths import daemon_socket_path
-from cc_daemon.daemon.status_server import SOCKET_MODE, _clear_stale
+from cc_daemon.daemon.status_server import SOCKET_MODE, _clear_stale, serve_until_cancelled
 
 if TYPE_CHECKING:
     from cc_daemon.config import StatusSettings
@@ -44,7 +44,6 @@ if TYPE_CHECKING:
 _log = structlog.get_logger("cc_daemon.control")
 
 CONTROL_NAME = "control.sock"
-RETRY_BIND_S = 30.0
 MAX_REQUEST = 512  # "release " and a reason: a line, never more
 REQUEST_TIMEOUT_S = 2.0
 _PEERCRED = struct.Struct("3i")
@@ -161,20 +160,4 @@ async def serve_control(
     if status_path is None:
         await asyncio.Future()
         return
-    server = ControlServer(control_path(status_path), release, home)
-    try:
-        while True:
-            try:
-                await server.start()
-                break
-            except OSError as exc:
-                _log.error(
-                    "control socket unavailable; retrying",
-                    path=str(server.path),
-                    error=str(exc),
-                    retry_s=RETRY_BIND_S,
-                )
-                await asyncio.sleep(RETRY_BIND_S)
-        await asyncio.Future()
-    finally:
-        await server.close()
+    await serve_until_cancelled(ControlServer(control_path(status_path), release, home), "control")

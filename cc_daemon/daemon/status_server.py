@@ -28,7 +28,7 @@ import stat
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import structlog
 
@@ -197,6 +197,21 @@ async def serve_status(
         max_clients=settings.max_clients,
         client_timeout_s=settings.client_timeout_s,
     )
+    await serve_until_cancelled(server, "status")
+
+
+class BoundServer(Protocol):
+    path: Path
+
+    async def start(self) -> None: ...
+
+    async def close(self) -> None: ...
+
+
+async def serve_until_cancelled(server: BoundServer, what: str) -> None:
+    """Bind `server` and serve until cancelled, then close it. A socket that cannot be
+    bound (another daemon's, a path not there yet) is said and retried every
+    RETRY_BIND_S: never a crash of the duty that serves it."""
     try:
         while True:
             try:
@@ -204,8 +219,8 @@ async def serve_status(
                 break
             except OSError as exc:
                 _log.error(
-                    "status socket unavailable; retrying",
-                    path=str(path),
+                    f"{what} socket unavailable; retrying",
+                    path=str(server.path),
                     error=str(exc),
                     retry_s=RETRY_BIND_S,
                 )

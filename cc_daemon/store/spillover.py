@@ -13,6 +13,7 @@ the writer thread only, except `_spill` at close.
 from __future__ import annotations
 
 import time
+from abc import ABC, abstractmethod
 from pathlib import Path
 
 from cc_daemon.store.buffer import Row, RowBuffer
@@ -30,7 +31,7 @@ STALL_S = 5.0
 MAX_TRANSACTION_ROWS = 500
 
 
-class SpillOver(RowBuffer):
+class SpillOver(RowBuffer, ABC):
     """Spill files for a writer; the writer supplies `_commit` and `_spill_line`."""
 
     def __init__(
@@ -53,8 +54,11 @@ class SpillOver(RowBuffer):
         self._rows_written = 0
         self._last_error: str | None = None
 
+    @abstractmethod
     def _commit(self, chunk: list[Row]) -> tuple[int, int, BaseException | None]:
-        raise NotImplementedError
+        """Commit `chunk` from its front: (rows done with, rows committed, the storage
+        error that stopped it). The writer's (`writer.BufferedWriter`): it holds the
+        connection."""
 
     def _spill_line(self, row: Row) -> str:
         return repr(row)
