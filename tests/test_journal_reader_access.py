@@ -35,6 +35,7 @@ READ_AS_NOBODY = textwrap.dedent(
     import json, os, sys
     from pathlib import Path
     from cc_daemon.store import JournalReader, StoreError
+    import cc_daemon.store.damage  # loaded lazily by the reader: load it while readable
 
     os.setgroups([])
     os.setgid(int(sys.argv[2]))
