@@ -212,10 +212,13 @@ class GpioWinch(HomeWitnessing):
             sys.setswitchinterval(self._switch_interval)
             atexit.unregister(self._emergency_stop)
             try:
-                self._dev.close()
-            finally:
+                # What drives the pins (the simulated drum) stops before they close:
+                # gpiozero clears a device's callbacks on close, and an edge still
+                # arriving then calls the None it finds (seen in CI under a pulse storm).
                 if self._on_close is not None:
                     self._on_close()
+            finally:
+                self._dev.close()
 
     # ------------------------------------------------------------ more than a Winch
 
