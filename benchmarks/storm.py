@@ -4,8 +4,10 @@ babbles (a broken wire, a floating input), on gpiozero's mock pins.
 The daemon runs in-process on a pty pair with the GPIO winch on a MockFactory,
 its probe home (the switch pin held closed). A thread drives the pulse pin up
 and down as fast as it can, as gpiozero's callback thread would deliver a storm;
-another thread asks P-S and times each R-P, first without the storm, then in
-it. The winch must take the storm as an encoder fault and do the least possible
+a child process, as the autopilot is, asks P-S on the pty's other end and times
+each R-P, first without the storm, then in it. (The asker is not a thread of
+the daemon's process: it would compete for the daemon's GIL as no autopilot
+does.) The winch must take the storm as an encoder fault and do the least possible
 per edge, so the loop still answers (issue 19: p99 <= 5 ms).
 
     python -m benchmarks storm      (or: make bench)
@@ -14,9 +16,11 @@ per edge, so the loop still answers (issue 19: p99 <= 5 ms).
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import select
 import statistics
+import subprocess
 import sys
 import tempfile
 import threading
@@ -50,6 +54,18 @@ def _ask(fd: int, n: int) -> list[float]:
         out.append(time.perf_counter() - started)
         time.sleep(0.002)
     return out
+
+
+def _ask_from_child(fd: int, n: int) -> list[float]:
+    """`_ask` in a child process on the inherited pty master (the autopilot's end)."""
+    out = subprocess.run(
+        [sys.executable, "-m", "benchmarks.storm", "--ask", str(fd), str(n)],
+        pass_fds=(fd,),
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return [float(v) for v in json.loads(out.stdout)]
 
 
 def _storm(pin: Any, stop: threading.Event, edges: list[int]) -> None:
@@ -95,12 +111,12 @@ async def _run() -> tuple[list[float], list[float], float, str | None]:
         daemon = Daemon(settings, winch=winch)
         task = asyncio.create_task(daemon.run())
         await asyncio.wait_for(daemon.ready.wait(), 10)
-        quiet = await asyncio.to_thread(_ask, pty.master_fd, REQUESTS)
+        quiet = await asyncio.to_thread(_ask_from_child, pty.master_fd, REQUESTS)
         stop, edges = threading.Event(), []
         storm = threading.Thread(target=_storm, args=(factory.pin(gpio.pulse_pin), stop, edges))
         started = time.monotonic()
         storm.start()
-        loud = await asyncio.to_thread(_ask, pty.master_fd, REQUESTS)
+        loud = await asyncio.to_thread(_ask_from_child, pty.master_fd, REQUESTS)
         stop.set()
         storm.join()
         rate = edges[0] / (time.monotonic() - started)
@@ -111,6 +127,9 @@ async def _run() -> tuple[list[float], list[float], float, str | None]:
 
 
 def main() -> int:
+    if sys.argv[1:2] == ["--ask"]:  # the child: the autopilot's side
+        print(json.dumps(_ask(int(sys.argv[2]), int(sys.argv[3]))))
+        return 0
     from cc_daemon.ground.logsetup import configure_logging
 
     configure_logging("console", "critical", sys.stderr)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import socket
 import sqlite3
 from collections.abc import AsyncIterator
@@ -87,6 +88,21 @@ async def test_a_second_ctrl_c_while_idle_is_a_clean_exit(rig: tuple[Daemon, Fra
     assert await port.receive(1) is not None
     daemon.request_shutdown()
     daemon.request_shutdown(immediate=True)
+    assert await asyncio.wait_for(task, 5) == EXIT_OK
+
+
+async def test_start_up_objects_are_frozen_out_of_the_collectors_scans(
+    rig: tuple[Daemon, FramePort],
+) -> None:
+    # A full collection over everything start-up built stalled the loop ~60 ms
+    # under a pulse storm (docs/gpio-winch.md "The pulse storm").
+    daemon, _ = rig
+    gc.unfreeze()
+    assert gc.get_freeze_count() == 0
+    task = asyncio.create_task(daemon.run())
+    await asyncio.wait_for(daemon.ready.wait(), 5)
+    assert gc.get_freeze_count() > 1000
+    daemon.request_shutdown()
     assert await asyncio.wait_for(task, 5) == EXIT_OK
 
 

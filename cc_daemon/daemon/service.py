@@ -19,6 +19,7 @@ Guarantees:
 from __future__ import annotations
 
 import asyncio
+import gc
 from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
@@ -190,6 +191,7 @@ class Daemon(CastRunner):
             winch=self.settings.winch.backend,
             store=str(self._journal.path),
         )
+        gc.freeze()  # start-up's objects live on: a full collection skips them (performance.md)
         try:
             # A probe left down (a crash, a power cut) comes home before READY.
             await prepare_winch(
@@ -459,15 +461,13 @@ class Daemon(CastRunner):
         self._line.link_changed(up, self._clock.monotonic())
         if up:
             self._quiet.opened(self._clock.monotonic())
-        else:
-            self._quiet.closed()
-        if up:
             kind = "port_regained" if self.port_losses else "port_opened"
             self._journal_event(kind, port=self.link.port)
             self._release_interrupted()  # a station the previous run left the boat at
             self.ready.set()
             self._notifier.notify(f"STATUS=answering on {self.link.port}")
         else:
+            self._quiet.closed()
             self.port_losses += 1
             self._journal_event("port_lost", port=self.link.port, reason=reason)
             self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
