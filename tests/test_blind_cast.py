@@ -13,24 +13,30 @@ from typing import Any
 import structlog
 
 from cc_daemon.core.protocol import Finished
+from cc_daemon.core.winch.physics import LinePhysics
 from cc_daemon.core.winch.status import ApproachSpeed
 from cc_daemon.daemon.service import EXIT_OK, Daemon
-from cc_daemon.drivers.winch.simulated import SimulatedWinch
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
 from tests.daemonkit import station
 from tests.test_service import RecordingWinch, _settings
 
 
-class SlowCapableWinch(RecordingWinch):
-    """The recording winch with an approach speed (here: the same physics, recorded)."""
+class OneSpeedWinch:
+    """A winch with one speed (no `move_slowly_to`): the recording winch's physics
+    behind the bare Winch interface."""
 
-    def move_slowly_to(self, depth_m: float) -> None:
-        self.calls.append(f"slowly {depth_m}")
-        SimulatedWinch.move_to(self, depth_m)  # the same physics; recorded as slow
+    def __init__(self) -> None:
+        self._inner = RecordingWinch()
+        self.calls = self._inner.calls
+        self.status = self._inner.status
+        self.move_to = self._inner.move_to
+        self.stop = self._inner.stop
+        self.wait_change = self._inner.wait_change
+        self.close = self._inner.close
 
 
-async def _cast(tmp_path: Path, winch: RecordingWinch, sonar_mm: int, confidence: int) -> None:
+async def _cast(tmp_path: Path, winch: Any, sonar_mm: int, confidence: int) -> None:
     with PtyPair(tmp_path / "tty") as pty:
         daemon = Daemon(_settings(tmp_path, pty.path), winch=winch)
         port = await FramePort.over_fd(pty.master_fd)
@@ -59,8 +65,8 @@ def _journal(tmp_path: Path) -> tuple[list[tuple[Any, ...]], dict[str, Any]]:
 
 
 async def test_a_sentinel_bottom_casts_blind_slowly_and_is_journaled_so(tmp_path: Path) -> None:
-    winch = SlowCapableWinch()
-    assert isinstance(winch, ApproachSpeed)
+    winch = RecordingWinch()
+    assert isinstance(winch, ApproachSpeed)  # the simulated winch has an approach speed
     # FAST_CAST's target is 3 m; 4294967295 mm is no bottom at all.
     await _cast(tmp_path, winch, sonar_mm=4294967295, confidence=100)
     moves = [c for c in winch.calls if c != "stop"]
@@ -76,7 +82,7 @@ async def test_a_sentinel_bottom_casts_blind_slowly_and_is_journaled_so(tmp_path
 
 
 async def test_a_winch_without_an_approach_speed_says_so_once(tmp_path: Path) -> None:
-    winch = RecordingWinch()
+    winch = OneSpeedWinch()
     assert not isinstance(winch, ApproachSpeed)
     with structlog.testing.capture_logs() as logs:
         await _cast(tmp_path, winch, sonar_mm=2000, confidence=10)
@@ -85,3 +91,12 @@ async def test_a_winch_without_an_approach_speed_says_so_once(tmp_path: Path) ->
     assert len(said) == 1 and said[0]["backend"] == "sim"
     blind = [e for e in logs if e["event"] == "no trusted sonar bottom: casting blind"]
     assert blind[0]["reason"] == "sonar confidence 10 % is under cast.min_sonar_confidence 70 %"
+
+
+def test_the_simulated_line_runs_a_slow_motion_at_the_approach_speed() -> None:
+    physics = LinePhysics(speed_m_s=0.5, max_line_m=20.0)
+    physics.command(0.0, 1.0, slow=True)
+    assert physics.arrival_time(0.0) == 4.0  # 1 m at half of 0.5 m/s
+    assert physics.depth(2.0) == 0.5
+    physics.command(4.0, 0.0)  # home at the line speed
+    assert physics.arrival_time(4.0) == 6.0

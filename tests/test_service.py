@@ -129,6 +129,10 @@ class RecordingWinch(SimulatedWinch):
         self.calls.append(f"move_to {depth_m}")
         super().move_to(depth_m)
 
+    def move_slowly_to(self, depth_m: float) -> None:
+        self.calls.append(f"slowly {depth_m}")
+        super().move_slowly_to(depth_m)
+
     def stop(self) -> None:
         self.calls.append("stop")
         super().stop()

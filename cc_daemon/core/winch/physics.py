@@ -14,6 +14,7 @@ from cc_daemon.core.winch.status import WinchStatus
 
 HOME_TOLERANCE_M = 0.005  # the limit switch closes within 5 mm of the top
 JAM_DEPTH_M = 0.5  # with fail_home, an ascent jams this far below home
+APPROACH_FRACTION = 0.5  # a slow motion (a blind descent) runs at half the line speed
 
 
 @dataclass(slots=True)
@@ -44,8 +45,9 @@ class LinePhysics:
         self._motion: _Motion | None = None
         self._fault: str | None = None
 
-    def command(self, now: float, target_m: float) -> None:
-        """Start moving from wherever the probe is now towards `target_m`."""
+    def command(self, now: float, target_m: float, *, slow: bool = False) -> None:
+        """Start moving from wherever the probe is now towards `target_m`; `slow`: at
+        the approach speed (`APPROACH_FRACTION` of the line speed) the whole way."""
         depth = self.depth(now)
         self._settle(now)
         target = min(max(target_m, 0.0), self.max_line_m)
@@ -56,7 +58,8 @@ class LinePhysics:
             end = min(depth, JAM_DEPTH_M)
             fault = f"home not reached: line jammed at {end:.2f} m"
         self._fault = None
-        self._motion = _Motion(depth, now, end, now + abs(end - depth) / self.speed_m_s, fault)
+        speed = self.speed_m_s * (APPROACH_FRACTION if slow else 1.0)
+        self._motion = _Motion(depth, now, end, now + abs(end - depth) / speed, fault)
 
     def stop(self, now: float) -> None:
         self._depth = self.depth(now)

@@ -31,6 +31,12 @@ class SimulatedWinch:
         self._physics.command(self._clock.monotonic(), depth_m)
         self._changed.set()
 
+    def move_slowly_to(self, depth_m: float) -> None:
+        """`move_to` at the approach speed (core.winch.status's ApproachSpeed): a blind
+        cast pays out with the bed anywhere below."""
+        self._physics.command(self._clock.monotonic(), depth_m, slow=True)
+        self._changed.set()
+
     def stop(self) -> None:
         self._physics.stop(self._clock.monotonic())
         self._changed.set()
