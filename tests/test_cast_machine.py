@@ -13,7 +13,7 @@ from cc_daemon.core.cast.machine import CastMachine, Outcome, ReportDepth
 from cc_daemon.core.cast.plan import Phase
 from cc_daemon.core.errors import TransitionError
 from cc_daemon.core.winch.physics import HOME_TOLERANCE_M, LinePhysics
-from cc_daemon.core.winch.status import WinchStatus
+from cc_daemon.core.winch.status import HOMING_FAILED, WinchStatus
 from tests.castkit import drive, plan_for, settings, station
 
 START = 1000.0
@@ -158,6 +158,26 @@ def test_finishing_while_not_home_is_refused() -> None:
     )
     with pytest.raises(TransitionError):
         machine._finish([], WinchStatus(2.0, False, False, None))
+
+
+def test_finishing_needs_home_verified_as_r_f_does_everywhere() -> None:
+    # core.winch.status.verified_home: a switch made on a winch whose homing
+    # failed, or one still moving, vouches for nothing.
+    machine = CastMachine(
+        plan_for(station(sonar_mm=30_000), settings(target_depth_m=1.0, bottom_dwell_s=0.0)),
+        started_at=START,
+        report_period_s=1,
+        max_duration_s=600,
+    )
+    machine.step(START, WinchStatus(0.0, False, True, None))  # command 1.0 m
+    machine.step(START + 4, WinchStatus(1.0, False, False, None))  # arrived: command home
+    assert machine.phase is Phase.ASCENDING
+    with pytest.raises(TransitionError):
+        machine._finish([], WinchStatus(0.0, False, True, f"{HOMING_FAILED}: stall"))
+    with pytest.raises(TransitionError):
+        machine._finish([], WinchStatus(0.0, True, True, None))
+    machine._finish([], WinchStatus(0.0, False, True, None))
+    assert machine.phase is Phase.FINISHED
 
 
 def test_illegal_transitions_raise() -> None:

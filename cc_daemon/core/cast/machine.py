@@ -285,7 +285,7 @@ class CastMachine:
                     return  # the status in hand predates the command
                 if status.moving:
                     return
-                if leg.depth_m == 0.0 and not status.at_home:
+                if leg.depth_m == 0.0 and not verified_home(status):
                     self._fault(out, now, f"winch stopped at {status.depth_m:.2f} m, not home")
                     return
                 if leg.phase in _HOME_LEGS:
@@ -335,7 +335,7 @@ class CastMachine:
         )
 
     def _finish(self, out: list[Action], status: WinchStatus) -> None:
-        if not status.at_home:  # the rule the autopilot's safety rests on
+        if not verified_home(status):  # the rule the autopilot's safety rests on
             raise TransitionError("refusing to finish a cast while the probe is not home")
         out.append(StopWinch("probe home"))
         last_phase = self.phase
