@@ -25,6 +25,7 @@ MODULES = [
     "storm",
     "flood",
     "sonar_stream",
+    "sonar_rss",
     "web",
 ]
 
