@@ -63,7 +63,8 @@ async def _run(directory: Path) -> tuple[int, float, float, float]:
         device = Ping1DDevice(lambda: Echo(8219, 100), interval_s=3600.0)  # we stream
         server = await Ping1DServer.over_fd(sonar.master_fd, device)
         env = daemon_env() | {"CC_DAEMON_SONAR__PORT": str(sonar.path)}
-        proc = subprocess.Popen(
+        proc = await asyncio.to_thread(
+            subprocess.Popen,
             daemon_command(directory, line.path),
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
@@ -74,7 +75,8 @@ async def _run(directory: Path) -> tuple[int, float, float, float]:
         try:
             started = time.monotonic()
             await asyncio.to_thread(wait_first_answer, line.master_fd, started)
-            while not device.streaming and time.monotonic() - started < 20:
+            # The simulated Ping's flag, set as the daemon's request arrives: polled.
+            while not device.streaming and time.monotonic() - started < 20:  # noqa: ASYNC110
                 await asyncio.sleep(0.05)
             since = time.monotonic()
             sent = await _babble(server, SECONDS)
