@@ -255,6 +255,24 @@ def test_noise_far_from_a_silent_daemon_does_not_excuse_it() -> None:
     assert len(ap.problems) == len(no_ack) - 1
 
 
+@pytest.mark.parametrize("firmware", ["ucm-2023", "manual"])
+def test_the_2023_firmwares_only_m_lost_to_noise_excuses_the_missing_r_f(firmware: str) -> None:
+    # The 2023 firmware sends M once: mangled on the way, no daemon can end the
+    # station. The manual's autopilot resends M, so its silent daemon has no excuse.
+    config = AutopilotConfig(boat_speed_m_s=100.0, finish_timeout_s=20.0, firmware=firmware)  # type: ignore[arg-type]
+    ap = Autopilot(_mission(), config)
+    t = _run_until(ap, Phase.REQUESTING)
+    ap.bits_flipped(t + 0.5, inbound=False)  # the M it sent is mangled
+    for i in range(1, 40):
+        ap.poll(t + i)  # the daemon never heard an M: not a word from it
+    [no_finish] = [v for v in ap.violations if v.kind is ViolationKind.NO_FINISH]
+    if firmware == "ucm-2023":
+        assert no_finish.excused_by is not None and "its only M was lost" in no_finish.excused_by
+        assert ap.problems == []
+    else:
+        assert not no_finish.excused and no_finish in ap.problems
+
+
 def test_noise_excuses_a_lost_answer_and_a_report_gap_around_it() -> None:
     ap, t = _at_cast()
     ap.on_frame(t + 0.5, DepthReport(0, 300))

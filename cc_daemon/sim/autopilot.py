@@ -531,6 +531,7 @@ class Autopilot:
                 ViolationKind.NO_FINISH,
                 f"no R-F {config.finish_timeout_s:g} s after arriving; giving up on the station "
                 f"with the probe last reported at {self.probe_depth_m:.2f} m",
+                excused_by=self._only_m_lost(log),
             )
             self.finished = True
             self.phase = Phase.DONE  # a boat must not leave with the probe possibly down
@@ -553,6 +554,14 @@ class Autopilot:
         self.violations.append(violation)
         if station is not None:
             self.logs[self.index].violations.append(violation)
+
+    def _only_m_lost(self, log: StationLog) -> str | None:
+        """The 2023 firmware sends M once: that M lost to the injected noise or cable, no
+        daemon could end the station (it can only say it suspects so: a lost M)."""
+        lost = [v for v in log.violations if v.kind is ViolationKind.NO_ACK and v.excused]
+        if not self.config.ucm_2023 or log.acked_at is not None or not lost:
+            return None
+        return f"its only M was lost ({lost[0].excused_by}); the 2023 firmware never resends it"
 
     def _cable_out(self, since: float, now: float) -> str | None:
         """The excuse of a cable pulled within [since, now] (and the reconnect after)."""
