@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Iterator, MutableMapping
 from pathlib import Path
 from typing import Any
 
@@ -241,7 +241,9 @@ def test_a_second_kind_of_fault_is_said_but_not_the_fallback_again() -> None:
 
 
 @contextlib.asynccontextmanager
-async def logged_rig(**kwargs: Any) -> AsyncIterator[tuple[GpioRig, list[dict[str, Any]]]]:
+async def logged_rig(
+    **kwargs: Any,
+) -> AsyncIterator[tuple[GpioRig, list[MutableMapping[str, Any]]]]:
     with structlog.testing.capture_logs() as logs:
         async with gpio_rig(adc=True, **kwargs) as rig:
             yield rig, logs
@@ -325,7 +327,9 @@ async def test_an_adc_that_stops_answering_mid_move_is_a_sensor_fault_not_a_stop
     async with gpio_rig(adc=True) as rig:
         rig.winch.move_to(2.0)
         await wait_for(lambda: rig.drum.line_m > 0.3)
-        rig.winch._dev.current.close()  # the next reading raises
+        adc = rig.winch._dev.current
+        assert adc is not None
+        adc.close()  # the next reading raises
         await rig.settle()
         assert rig.winch.status().fault is None
         [event] = sensor_faults(rig)
