@@ -1,12 +1,16 @@
 """GPIO winch benchmark: how fast the motor goes off, on gpiozero's mock pins.
 
-Two figures (not tests):
+Three figures (not tests):
 - limit switch edge -> motor enable pin low: the switch pin is driven high on a
   thread (as gpiozero's callback thread would see it) while the motor hauls in;
   timed from just before the edge to the PWM pin's recorded change to 0;
 - blocked event loop -> the watchdog thread stopping the motor: the loop is
   blocked with the motor running; timed from the block to the pin going low,
-  against the configured `loop_watchdog_s`.
+  against the configured `loop_watchdog_s`;
+- one MCP3008 reading (the supply channel) through gpiozero's software SPI on
+  mock pins, answered by the simulated drum: what the winch's sensor checks cost
+  the event loop on each reading (the current each 50 ms tick, the supply once a
+  second while running and at each zero check).
 
 On a Pi, lgpio's edge detection adds its own delay before gpiozero's callback;
 this measures what the daemon adds on top.
@@ -28,10 +32,11 @@ from cc_daemon.drivers.winch.devices import open_devices
 from cc_daemon.drivers.winch.gpio import GpioWinch
 from cc_daemon.drivers.winch.motor import Direction
 from cc_daemon.ground.clock import SystemClock
-from cc_daemon.sim.drum import MockWinchFactory
+from cc_daemon.sim.drum import MockWinchFactory, SimulatedDrum
 
 SWITCH_TRIALS = 300
 WATCHDOG_TRIALS = 8
+ADC_READS = 500
 
 
 def _pin_went_low_at(pin: Any, after: float) -> float | None:
@@ -100,6 +105,29 @@ async def _watchdog_latency(timeout_s: float, trials: int) -> list[float]:
     return out
 
 
+def _adc_reads() -> tuple[list[float], float]:
+    """Wall time of each supply reading, and the CPU time of all of them."""
+    cfg = WinchGpioSettings.model_validate({"pin_factory": "mock", "adc": True})
+    factory = SimulatedDrum.factory_for(cfg)
+    drum = SimulatedDrum(factory, cfg)
+    devices = open_devices(cfg, factory)
+    assert devices.voltage is not None
+    out: list[float] = []
+    try:
+        devices.voltage.value  # noqa: B018 - the first read sets the bus up
+        cpu = time.process_time()
+        for _ in range(ADC_READS):
+            start = time.perf_counter()
+            devices.voltage.value  # noqa: B018 - the read is the point
+            out.append(time.perf_counter() - start)
+        cpu = time.process_time() - cpu
+    finally:
+        devices.close()
+        drum.close()
+        factory.reset()
+    return out, cpu
+
+
 def _ms(values: list[float]) -> str:
     ordered = sorted(values)
     p99 = ordered[min(len(ordered) - 1, round(0.99 * (len(ordered) - 1)))]
@@ -120,6 +148,9 @@ def main() -> int:
         print(f"blocked loop -> watchdog stop (limit {timeout_s:g} s): {_ms(watchdog)}")
         late = max(watchdog) - timeout_s
         print(f"   at most {late * 1e3:.1f} ms after loop_watchdog_s")
+    reads, cpu = _adc_reads()
+    print(f"one MCP3008 reading on mock pins:             {_ms(reads)}")
+    print(f"   {cpu / len(reads) * 1e3:.3f} ms of CPU a reading")
     return 0
 
 

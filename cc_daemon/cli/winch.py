@@ -82,7 +82,9 @@ def _home_through_daemon(settings: Any) -> int | None:
     return EXIT_OK if answer["ok"] else EXIT_FAULT
 
 
-def _line(winch: Any) -> str:
+def _line(winch: Any, cfg: Any) -> str:
+    from cc_daemon.core.winch.sensors import supply_fault
+
     status = winch.status()
     parts = [
         f"line out {winch.line_m:7.3f} m",
@@ -94,10 +96,16 @@ def _line(winch: Any) -> str:
         parts.append(f"current {current:5.2f} A")
     if supply is not None:
         parts.append(f"supply {supply:5.2f} V")
+        if supply_fault(supply, min_v=cfg.supply_min_v, max_v=cfg.supply_max_v):
+            parts.append(
+                f"(cannot be true: outside {cfg.supply_min_v:g} to {cfg.supply_max_v:g} V)"
+            )
     if status.at_home:
         parts.append("home (count and switch agree)")
     if status.fault:
         parts.append(f"FAULT: {status.fault}")
+    if winch.sensor_fault:
+        parts.append(f"SENSOR FAULT (overcurrent by pulses only): {winch.sensor_fault}")
     return "  ".join(parts)
 
 
@@ -123,7 +131,7 @@ async def _drive(
         loop.add_signal_handler(signum, interrupted.set)
     try:
         await asyncio.sleep(0.05)  # the switch's state, from the pins
-        print(_line(winch), file=out, flush=True)
+        print(_line(winch, settings.winch.gpio), file=out, flush=True)
         if action == "status":
             return EXIT_OK
         run: asyncio.Future[Any]
@@ -136,7 +144,7 @@ async def _drive(
         stop = asyncio.ensure_future(interrupted.wait())
         while not run.done():
             await asyncio.wait({run, stop}, timeout=PRINT_EVERY_S)
-            print(_line(winch), file=out, flush=True)
+            print(_line(winch, settings.winch.gpio), file=out, flush=True)
             if stop.done():
                 winch.stop()
                 print("interrupted: motor stopped", file=out)

@@ -139,6 +139,12 @@ class WinchGpioSettings(BaseModel):
     divider_r2_ohm: _Positive = 7400.0
     max_current_a: _Positive = 4.0
     overcurrent_s: Annotated[float, Field(gt=0, le=5)] = 0.5
+    # The supply's possible range: a reading outside it is the supply or the ADC (a
+    # sensor fault). A 12 V lead-acid system: flat at 10.5 V at rest and sagging
+    # under the motor, so 9 V; 16 V is above any charger's equalisation (15.5 V).
+    # At most 60 V: a safety-extra-low-voltage boat, past every H-bridge here.
+    supply_min_v: Annotated[float, Field(ge=0, le=60)] = 9.0
+    supply_max_v: Annotated[float, Field(gt=0, le=60)] = 16.0
 
     def pins(self) -> dict[str, int]:
         """Every GPIO this configuration claims, by key (SPI0 too when the ADC is on)."""
@@ -195,7 +201,37 @@ class WinchGpioSettings(BaseModel):
                     "current_zero_v",
                     "adc_vref_v",
                 )
+        if self.supply_min_v >= self.supply_max_v:
+            raise _impossible(
+                "{0} must be below {1} (the supply's range would be empty)",
+                "supply_min_v",
+                "supply_max_v",
+            )
+        if self.adc:
+            self._check_supply_range()
         return self
+
+    def _check_supply_range(self) -> None:
+        """The supply's range must be one the divider can tell from outside it."""
+        divider = (self.divider_r1_ohm + self.divider_r2_ohm) / self.divider_r2_ohm
+        full_scale = self.adc_vref_v * divider
+        if self.supply_max_v >= full_scale:
+            raise _impossible(
+                "{0} must be below the most the divider can read, {1} x ({2} + {3}) / {3} = "
+                + f"{full_scale:.2f} V (a supply above it reads full scale, never above {{0}})",
+                "supply_max_v",
+                "adc_vref_v",
+                "divider_r1_ohm",
+                "divider_r2_ohm",
+            )
+        step = 2 * full_scale / 1024  # two steps of the 10-bit MCP3008
+        if self.supply_max_v - self.supply_min_v < step:
+            raise _impossible(
+                "{0} to {1} is narrower than two steps of the ADC through the divider "
+                + f"({step:.3f} V): no reading could be trusted inside it",
+                "supply_min_v",
+                "supply_max_v",
+            )
 
 
 class WinchSettings(BaseModel):

@@ -6,7 +6,8 @@ the mock pulse pin (or the two quadrature pins) as the drum turns, closes the
 mock limit switch when the line is in, and answers the MCP3008's SPI
 transactions with a motor current and a supply voltage. Faults can be
 injected: a jammed drum, a snag that closes the switch on the way down, a
-switch that never closes, a slow haul, lost pulses.
+switch that never closes, a slow haul, lost pulses, a current sensor stuck or
+noisy, a supply voltage out of its range.
 
 It is for tests, benchmarks, `--simulate --winch gpio-mock` and demos; it
 never runs on a native pin factory. Because mock pins call their callbacks in
@@ -17,6 +18,7 @@ as they would on gpiozero's own thread on a Pi.
 from __future__ import annotations
 
 import math
+import random
 import threading
 import time
 from dataclasses import dataclass
@@ -135,6 +137,10 @@ class DrumFaults:
     overcurrent_a: float | None = None  # the motor draws this whenever it runs
     current_adc: float | None = None  # the current sensor's ADC stuck here (0..1): a bad sensor
     storm_at_m: float | None = None  # past here going out, the pulse pin babbles from then on
+    # With the motor running, the current sensor's ADC reads random values from a
+    # generator seeded with this (the motor's noise on a long unshielded sensor wire).
+    current_noise_seed: int | None = None
+    supply_v: float | None = None  # the supply reads this, volts (a flat battery, a bad divider)
 
 
 class SimulatedDrum:
@@ -176,6 +182,7 @@ class SimulatedDrum:
         self.adc = (
             _MockMCP3008(factory, 8 - cfg.adc_spi_device, self._adc_channel) if cfg.adc else None
         )
+        self._noise: random.Random | None = None  # faults.current_noise_seed's, once used
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -301,12 +308,18 @@ class SimulatedDrum:
             pin.drive_low()
 
     def _adc_channel(self, channel: int) -> float:
+        faults = self.faults
         if channel == self.cfg.current_channel:
-            if self.faults.current_adc is not None:
-                return self.faults.current_adc
+            if faults.current_adc is not None:
+                return faults.current_adc
+            if faults.current_noise_seed is not None and self.motor()[0]:
+                if self._noise is None:
+                    self._noise = random.Random(faults.current_noise_seed)
+                return self._noise.random()
             return current_fraction(self._current, self.motor_current_a())
         if channel == self.cfg.voltage_channel:
-            return self._divider.fraction(self.supply_v)
+            supply = faults.supply_v if faults.supply_v is not None else self.supply_v
+            return self._divider.fraction(supply)
         return 0.0
 
 
