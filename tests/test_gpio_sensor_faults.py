@@ -142,6 +142,20 @@ def test_a_supply_range_the_divider_cannot_read_names_the_keys() -> None:
     assert "narrower than two steps of the ADC" in narrow and "0.032 V" in narrow
 
 
+def test_an_overcurrent_limit_the_sensor_cannot_read_names_the_keys() -> None:
+    # (3.3 x 0.998 - 2.5) / 0.185 = 4.29 A: a 5 A limit could never be seen.
+    [over] = problems({"adc": True, "max_current_a": 5.0})
+    assert over.startswith(
+        "winch.gpio.max_current_a = 5.0 (from the command line), winch.gpio.adc_vref_v = 3.3 "
+        "(default), winch.gpio.current_zero_v = 2.5 (default) and winch.gpio.current_v_per_a "
+        "= 0.185 (default): impossible combination"
+    )
+    assert "4.29 A at the ADC's top" in over
+    # The default is readable; without the ADC nothing reads the current: not refused.
+    load_settings(None, {"winch": {"gpio": {"adc": True}}}, env={}, search_paths=())
+    load_settings(None, {"winch": {"gpio": {"max_current_a": 5.0}}}, env={}, search_paths=())
+
+
 def test_the_daemon_exits_2_on_a_supply_range_it_cannot_read(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -278,6 +292,23 @@ async def test_a_jam_read_by_a_sane_sensor_is_still_an_overcurrent_stall() -> No
     assert sensor_faults(rig) == [] and rig.winch.sensor_fault is None
     [fault] = [d for k, d in rig.events if k == "winch_fault"]
     assert fault["peak_current_a"] == pytest.approx(4.2, abs=0.05)
+    assert FALLBACK not in [e["event"] for e in logs]
+
+
+async def test_a_jam_past_the_sensors_range_is_an_overcurrent_stall_not_a_sensor_fault() -> None:
+    # The mock drum's own jam: 4 x 1.2 A = 4.8 A, more than the 4.32 A the ADC reads.
+    # The reading sits at the top rail with the motor running: the jam, stopped by the
+    # current in overcurrent_s, the sensor still trusted (it read 0 A at rest).
+    async with logged_rig(faults=DrumFaults(jam_at_m=0.8), stall_timeout_s=2.0) as (rig, logs):
+        rig.winch.move_to(3.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and status.fault.startswith("stall: motor current")
+        assert rig.drum.motor() == (0, 0.0)
+        rig.winch.move_to(0.0)  # the zero check at rest: the sensor reads 0 A, still sane
+        await rig.settle()
+        assert rig.winch.status().at_home
+    assert sensor_faults(rig) == [] and rig.winch.sensor_fault is None
     assert FALLBACK not in [e["event"] for e in logs]
 
 

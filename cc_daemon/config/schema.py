@@ -39,6 +39,7 @@ from cc_daemon.config.rules import (
     _upper,
 )
 from cc_daemon.config.sonde import SondeSettings
+from cc_daemon.core.winch.sensors import RAIL_MARGIN
 
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
 # docs/configuration.md; tests keep both in step with these models.
@@ -209,7 +210,23 @@ class WinchGpioSettings(BaseModel):
             )
         if self.adc:
             self._check_supply_range()
+            self._check_current_range()
         return self
+
+    def _check_current_range(self) -> None:
+        """An overcurrent the sensor cannot read could never be seen: max_current_a must
+        be below the most the sensor reads before the ADC's top rail."""
+        top_a = (self.adc_vref_v * (1 - RAIL_MARGIN) - self.current_zero_v) / self.current_v_per_a
+        if self.max_current_a >= top_a:
+            raise _impossible(
+                "{0} must be below the most the current sensor reads, ({1} - {2}) / {3} = "
+                + f"{top_a:.2f} A at the ADC's top (a higher current reads there, "
+                + "never above {0})",
+                "max_current_a",
+                "adc_vref_v",
+                "current_zero_v",
+                "current_v_per_a",
+            )
 
     def _check_supply_range(self) -> None:
         """The supply's range must be one the divider can tell from outside it."""

@@ -26,8 +26,15 @@ JUMP_FACTOR = 2.0
 
 
 def current_fault(fraction: float, amps: float, *, motor_on: bool) -> str | None:
-    """Why a current reading (ADC fraction 0..1 and its amperes) cannot be true, or None."""
-    if fraction <= RAIL_MARGIN or fraction >= 1 - RAIL_MARGIN:
+    """Why a current reading (ADC fraction 0..1 and its amperes) cannot be true, or None.
+
+    At the top rail with the motor running the reading may be true: a jam drawing
+    more than the sensor can read (a 5 A ACS712 on a 3.3 V ADC reads at most about
+    4.3 A). It is left to the overcurrent rule (max_current_a is below the top, the
+    configuration says so), which stops the motor; a sensor stuck there is found at
+    the zero check before the next move."""
+    top = fraction >= 1 - RAIL_MARGIN
+    if fraction <= RAIL_MARGIN or (top and not motor_on):
         return f"motor current sensor at a rail (ADC {fraction:.3f} of full scale, {amps:.2f} A)"
     if not motor_on and abs(amps) > ZERO_TOLERANCE_A:
         return (
