@@ -38,6 +38,7 @@ from cc_daemon.core.errors import WinchFault
 from cc_daemon.core.winch.drum import Drum
 from cc_daemon.core.winch.encoder import EncoderJudge, coast_allowance, max_pulse_rate
 from cc_daemon.core.winch.safety import Limits, MotionGuard
+from cc_daemon.core.winch.silence import DepthEstimate
 from cc_daemon.core.winch.status import WinchStatus
 from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
 from cc_daemon.drivers.winch.devices import GpioDevices
@@ -113,6 +114,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             coast_pulses=coast_allowance(cfg.count_tolerance_m, mpp),
         )
         self._encoder_bad: str | None = None  # pulses that cannot be true: not counted
+        self._estimate: DepthEstimate | None = None  # where the probe is, the count in doubt
         self._ignored = 0  # pulses not counted since the encoder fault
         # Loop side only.
         self._fault: str | None = None
@@ -156,7 +158,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self._changed.clear()
         running = self._bridge.direction is not Direction.STOPPED
         return WinchStatus(
-            depth_m=max(0.0, self.line_m),
+            depth_m=self.depth_m,  # the count's, or the best estimate when it is in doubt
             # Settling at the switch is still arriving: home is not yet verified.
             moving=running or self._settle is not None,
             at_home=self.at_home,
@@ -244,7 +246,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
     def hand_move(self, depth_m: float) -> None:
         """An operator's move (the RC stick): like `jog`, allowed while the witnesses
         disagree, since an operator's haul home is what can make them agree again."""
-        line = self.line_m
+        line = self.depth_m
         if depth_m <= 0.0:
             self.jog(Direction.HAUL_IN)
         elif depth_m > line:
@@ -323,7 +325,14 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             # homing) the whole line.
             line = self.max_line_m if homing or not self._homed else max(self.line_m, 0.0)
             deadline = now + line / cfg.line_speed_m_s + cfg.home_margin_s
-        self._guard = MotionGuard(self._limits, started_at=now, home_deadline=deadline)
+        self._guard = MotionGuard(
+            self._limits,
+            started_at=now,
+            home_deadline=deadline,
+            direction=int(direction),
+            full_speed_m_s=cfg.line_speed_m_s / nominal,  # line_speed_m_s is at the duty
+            prior=self._estimate,
+        )
         self._started_at = now
         self._arrived_count = None
         self._told_open_at_zero = False
@@ -358,14 +367,21 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
                 self._tick = None
             with self._lock:
                 self._goal = None
-            self._guard = None
+            guard, self._guard = self._guard, None
+            if guard is not None:
+                # With the count in doubt, a motion that ran without a counted pulse
+                # (stopped by the switch, a verdict, an operator) moved the estimate.
+                moved = guard.stopped(self._clock.monotonic())
+                if moved is not None:
+                    self._estimate = moved
 
     def _fail(self, fault: str, **detail: Any) -> None:
         self._halt()
         self._fault = fault
         self._changed.set()
-        _log.error("winch fault: motor stopped", fault=fault, line_m=round(self.line_m, 3))
-        self._record("winch_fault", fault=fault, line_m=round(self.line_m, 3), **detail)
+        where = self._where()
+        _log.error("winch fault: motor stopped", fault=fault, **where)
+        self._record("winch_fault", fault=fault, **{**where, **detail})
 
     def _emergency_stop(self) -> None:
         """atexit: whatever state the loop was in, the motor goes off."""
@@ -405,9 +421,14 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             return
         self._watchdog.feed()
         now = self._clock.monotonic()
-        fault = guard.check(now, self._sensing.current_a(motor_on=True), self.line_m)
+        current = self._sensing.current_a(motor_on=True)
+        fault = guard.check(now, current, self.line_m, duty=self._bridge.duty)
         if fault is not None:
-            self._fail(fault, peak_current_a=round(guard.peak_current_a, 3))
+            peak = round(guard.peak_current_a, 3)
+            if guard.silence is not None:
+                self._silent_drum(guard.silence, peak_current_a=peak)
+            else:
+                self._fail(fault, peak_current_a=peak)
             return
         self._set_power(now)
         self._schedule_tick()
@@ -429,6 +450,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
     # ------------------------------------------------------------ handed to the loop
 
     def _pulse_seen(self, count: int, stop: str | None) -> None:
+        self._estimate = None  # a counted pulse: the count says where the probe is again
         if self._guard is not None:
             self._guard.pulse(self._clock.monotonic())
         if stop == "end of line":
