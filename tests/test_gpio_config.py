@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -110,28 +111,31 @@ def test_the_adc_readings_become_amps_and_volts() -> None:
     assert divider.volts(1.0) == pytest.approx(3.3 * 36.8 / 7.4)
 
 
+MOTION: dict[str, Any] = {"direction": 1, "full_speed_m_s": 0.5}
+
+
 def test_stall_overcurrent_and_home_deadline_on_fake_time() -> None:
     limits = Limits(stall_timeout_s=2.0, max_current_a=4.0, overcurrent_s=0.5)
-    guard = MotionGuard(limits, started_at=100.0, home_deadline=None)
-    assert guard.check(101.9, 1.0, 0.5) is None
+    guard = MotionGuard(limits, started_at=100.0, home_deadline=None, **MOTION)
+    assert guard.check(101.9, None, 0.5, duty=0.9) is None
     guard.pulse(101.9)
-    assert guard.check(103.8, 1.0, 0.6) is None
-    fault = guard.check(104.0, 1.0, 0.6)
+    assert guard.check(103.8, None, 0.6, duty=0.9) is None
+    fault = guard.check(104.0, None, 0.6, duty=0.9)
     assert fault is not None and fault.startswith("stall: no drum pulse for 2.1 s")
 
-    guard = MotionGuard(limits, started_at=0.0, home_deadline=None)
+    guard = MotionGuard(limits, started_at=0.0, home_deadline=None, **MOTION)
     for t in (0.1, 0.3, 0.5):
         guard.pulse(t)
-    assert guard.check(0.2, 4.5, 1.0) is None  # over, but not for long yet
-    assert guard.check(0.4, 3.0, 1.0) is None  # back under: the clock restarts
-    assert guard.check(0.5, 4.5, 1.0) is None
+    assert guard.check(0.2, 4.5, 1.0, duty=0.9) is None  # over, but not for long yet
+    assert guard.check(0.4, 3.0, 1.0, duty=0.9) is None  # back under: the clock restarts
+    assert guard.check(0.5, 4.5, 1.0, duty=0.9) is None
     guard.pulse(1.0)
-    over = guard.check(1.05, 4.6, 1.0)
+    over = guard.check(1.05, 4.6, 1.0, duty=0.9)
     assert over is not None and "motor current 4.60 A" in over
     assert guard.peak_current_a == pytest.approx(4.6)
 
-    guard = MotionGuard(limits, started_at=0.0, home_deadline=3.0)
+    guard = MotionGuard(limits, started_at=0.0, home_deadline=3.0, **MOTION)
     guard.pulse(2.9)
-    assert guard.check(2.95, None, 0.4) is None
-    late = guard.check(3.1, None, 0.4)
+    assert guard.check(2.95, None, 0.4, duty=0.9) is None
+    late = guard.check(3.1, None, 0.4, duty=0.9)
     assert late is not None and late.startswith("home not reached")

@@ -81,8 +81,11 @@ class WinchSimSettings(BaseModel):
     stall_at_m: Annotated[_Positive | None, BeforeValidator(_empty_is_none)] = None
     fail_home: bool = False
     # The mock drum's sensor fault (--winch gpio-mock --winch-fault NAME): a switch
-    # stuck closed, a snag at 1 m, the current sensor's ADC at full scale.
-    drum_fault: Literal["none", "switch-stuck", "snag", "adc-garbage", "pulse-storm"] = "none"
+    # stuck closed, a snag at 1 m, the current sensor's ADC at full scale, a pulse
+    # storm from 1 m down, the pulse pin dead from the first haul in below 1 m.
+    drum_fault: Literal[
+        "none", "switch-stuck", "snag", "adc-garbage", "pulse-storm", "encoder-dead"
+    ] = "none"
     # Outside --simulate a simulated winch would answer a real autopilot for a probe
     # that never moves: it runs only when this says so in so many words.
     allow_outside_simulation: bool = False

@@ -129,13 +129,15 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument(
         "--winch-fault",
-        choices=("switch-stuck", "snag", "adc-garbage", "pulse-storm"),
+        choices=("switch-stuck", "snag", "adc-garbage", "pulse-storm", "encoder-dead"),
         default="none",
         metavar="NAME",
         help="with --winch gpio-mock, a sensor fault on the mock drum: switch-stuck (closed: "
         "no R-F, stranded), snag (the switch closes at 1 m: stranded), adc-garbage (the "
         "current sensor at full scale: said once, casts go on), pulse-storm (the pulse pin "
-        "babbles from 1 m down: an encoder fault, stranded)",
+        "babbles from 1 m down: an encoder fault, stranded), encoder-dead (the pulse pin "
+        "dies on the first haul up from below 1 m: the motor current says the drum turned, "
+        "the depth is dead-reckoned, stranded)",
     )
     group.add_argument(
         "--sonar-port",

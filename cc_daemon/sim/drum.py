@@ -6,8 +6,9 @@ the mock pulse pin (or the two quadrature pins) as the drum turns, closes the
 mock limit switch when the line is in, and answers the MCP3008's SPI
 transactions with a motor current and a supply voltage. Faults can be
 injected: a jammed drum, a snag that closes the switch on the way down, a
-switch that never closes, a slow haul, lost pulses, a current sensor stuck or
-noisy, a supply voltage out of its range.
+switch that never closes, a slow haul, lost pulses, a pulse pin that babbles
+or goes silent for ever, a current sensor stuck or noisy, a supply voltage out
+of its range.
 
 It is for tests, benchmarks, `--simulate --winch gpio-mock` and demos; it
 never runs on a native pin factory. Because mock pins call their callbacks in
@@ -124,6 +125,7 @@ class _MockMCP3008(MockSPIDevice):  # type: ignore[misc]
 SNAG_AT_M = 1.0  # --winch-fault snag: the switch closes here on the way down
 STORM_AT_M = 1.0  # --winch-fault pulse-storm: the pulse pin babbles from here on
 STORM_PULSES_PER_STEP = 10  # a babbling pin: 10 pulses a 1 ms step, 10,000 a second
+ENCODER_DEAD_FROM_M = 1.0  # --winch-fault encoder-dead: the first haul in from deeper kills it
 
 
 @dataclass
@@ -134,6 +136,9 @@ class DrumFaults:
     switch_stuck_open: bool = False  # the switch never closes
     switch_stuck_closed: bool = False  # the switch never opens (a shorted wire)
     lose_every: int = 0  # every n-th pulse paying out is lost (a slipping line), 0 = none
+    # The first haul in from deeper than this, the pulse pin goes silent for ever (a
+    # cut wire: the encoder dies on the way up, the drum turns on).
+    encoder_dead_in_from_m: float | None = None
     overcurrent_a: float | None = None  # the motor draws this whenever it runs
     current_adc: float | None = None  # the current sensor's ADC stuck here (0..1): a bad sensor
     storm_at_m: float | None = None  # past here going out, the pulse pin babbles from then on
@@ -167,6 +172,7 @@ class SimulatedDrum:
         self._line = line_m
         self.max_line_seen = line_m
         self.pulses_sent = 0
+        self.encoder_dead = False  # the pulse pin silent for ever (encoder_dead_in_from_m)
         self._lock = threading.Lock()
         self._pay_out = factory.pin(cfg.payout_pin)
         self._haul_in = factory.pin(cfg.haulin_pin)
@@ -245,6 +251,9 @@ class SimulatedDrum:
                 line += direction * duty * self.full_speed_m_s * dt
                 if not self.faults.switch_stuck_open:
                     line = max(line, 0.0)  # the probe is up against the block
+            dies = self.faults.encoder_dead_in_from_m
+            if direction < 0 and dies is not None and self._line > dies:
+                self.encoder_dead = True
             self._line = line
             self.max_line_seen = max(self.max_line_seen, line)
         storm = self.faults.storm_at_m
@@ -265,6 +274,8 @@ class SimulatedDrum:
         return into is not None and self._line <= into
 
     def _pulse(self, step: int) -> None:
+        if self.encoder_dead:
+            return  # the drum turns, the pin says nothing
         self.pulses_sent += 1
         lose = self.faults.lose_every
         if step > 0 and lose and self.pulses_sent % lose == 0:
@@ -335,6 +346,7 @@ def mock_drum_for(settings: Settings) -> SimulatedDrum:
         snag_at_m=SNAG_AT_M if sim.drum_fault == "snag" else None,
         current_adc=1.0 if sim.drum_fault == "adc-garbage" else None,
         storm_at_m=STORM_AT_M if sim.drum_fault == "pulse-storm" else None,
+        encoder_dead_in_from_m=ENCODER_DEAD_FROM_M if sim.drum_fault == "encoder-dead" else None,
     )
     speed = cfg.line_speed_m_s / cfg.payout_duty
     return SimulatedDrum(SimulatedDrum.factory_for(cfg), cfg, full_speed_m_s=speed, faults=faults)

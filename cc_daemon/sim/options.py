@@ -145,8 +145,9 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
     if options.winch_fail_home:
         sim["fail_home"] = True
     sim["drum_fault"] = options.winch_fault
-    if options.winch_fault == "adc-garbage":
-        gpio["adc"] = True  # the current sensor, to read garbage from
+    if options.winch_fault in ("adc-garbage", "encoder-dead"):
+        # The current sensor: to read garbage from, or to tell a dead encoder from a jam.
+        gpio["adc"] = True
     base["cast"].update(pace.cast)
     base["store"]["path"] = str(options.db_path.absolute())
     if base["status"]["path"] is None:

@@ -5,14 +5,15 @@ from drum pulses (revolutions x circumference is the probe's depth), the home
 limit switch, the optional motor current, and every safety rule of
 docs/gpio-winch.md.
 
-Threads. gpiozero calls the pulse and switch callbacks on its own thread, and
-the loop watchdog runs on another. On those threads the only thing done to
-the motor is *stopping* it (at the target count, at the end of the line, at
-the switch, where the witnesses disagree), under the H-bridge's lock; everything
-else is handed to the event loop with `call_soon_threadsafe`. What "home" means
-(two witnesses: the count and the switch) is its base's, `home.HomeWitnessing`.
-Starting the motor, the ramp, the safety checks, logging and journaling happen
-on the loop only.
+Threads. gpiozero calls the pulse and switch callbacks on its own thread (its
+base `edges.EdgeCounting`), and the loop watchdog runs on another. On those
+threads the only thing done to the motor is *stopping* it (at the target count,
+at the end of the line, at the switch, where the witnesses disagree), under the
+H-bridge's lock; everything else is handed to the event loop with
+`call_soon_threadsafe`. What "home" means (two witnesses: the count and the
+switch) is its base `home.HomeWitnessing`'s; whether the count can be believed
+(an encoder fault) is `trust.CountTrust`'s. Starting the motor, the ramp, the
+safety checks, logging and journaling happen on the loop only.
 
 It must never leave the motor running: `stop`, `close`, an exception in a
 tick, the loop going quiet (watchdog thread) and interpreter exit (atexit)
@@ -24,7 +25,6 @@ from __future__ import annotations
 import asyncio
 import atexit
 import contextlib
-import enum
 import math
 import sys
 import threading
@@ -38,12 +38,15 @@ from cc_daemon.core.errors import WinchFault
 from cc_daemon.core.winch.drum import Drum
 from cc_daemon.core.winch.encoder import EncoderJudge, coast_allowance, max_pulse_rate
 from cc_daemon.core.winch.safety import Limits, MotionGuard
+from cc_daemon.core.winch.silence import DepthEstimate
 from cc_daemon.core.winch.status import WinchStatus
 from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
 from cc_daemon.drivers.winch.devices import GpioDevices
+from cc_daemon.drivers.winch.edges import EdgeCounting, Goal
 from cc_daemon.drivers.winch.home import HomeWitnessing
 from cc_daemon.drivers.winch.motor import Direction
 from cc_daemon.drivers.winch.sensing import MotorSensing
+from cc_daemon.drivers.winch.trust import CountTrust
 from cc_daemon.drivers.winch.watchdog import LoopWatchdog
 from cc_daemon.ground.clock import Clock
 
@@ -61,12 +64,7 @@ APPROACH_FRACTION = 0.5  # within approach_m of the target the duty is halved
 EventSink = Callable[..., None]  # (kind, **detail): the journal's record_event
 
 
-class _Goal(enum.Enum):
-    TARGET = "target"  # stop at a pulse count
-    HOME = "home"  # haul in until the limit switch closes
-
-
-class GpioWinch(HomeWitnessing):
+class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
     def __init__(
         self,
         cfg: WinchGpioSettings,
@@ -104,7 +102,7 @@ class GpioWinch(HomeWitnessing):
         # False until the switch has set it (start-up with it open, homing from an
         # unknown position): a count that means nothing witnesses nothing.
         self._count_known = bool(devices.switch.is_active)
-        self._goal: _Goal | None = None
+        self._goal: Goal | None = None
         self._target_count = 0
         self._last_direction = Direction.PAY_OUT  # a lone pulse with no command: line going out
         self._switch_now = bool(devices.switch.is_active)  # as the last edge left it
@@ -116,6 +114,7 @@ class GpioWinch(HomeWitnessing):
             coast_pulses=coast_allowance(cfg.count_tolerance_m, mpp),
         )
         self._encoder_bad: str | None = None  # pulses that cannot be true: not counted
+        self._estimate: DepthEstimate | None = None  # where the probe is, the count in doubt
         self._ignored = 0  # pulses not counted since the encoder fault
         # Loop side only.
         self._fault: str | None = None
@@ -159,7 +158,7 @@ class GpioWinch(HomeWitnessing):
         self._changed.clear()
         running = self._bridge.direction is not Direction.STOPPED
         return WinchStatus(
-            depth_m=max(0.0, self.line_m),
+            depth_m=self.depth_m,  # the count's, or the best estimate when it is in doubt
             # Settling at the switch is still arriving: home is not yet verified.
             moving=running or self._settle is not None,
             at_home=self.at_home,
@@ -227,10 +226,6 @@ class GpioWinch(HomeWitnessing):
         with self._lock:
             return self.drum.line_m(self._edge())
 
-    def _edge(self) -> int:
-        """The count at the last edge (under _lock): where the line was when it was seen."""
-        return self._count + (1 if self._last_step < 0 else 0)
-
     @property
     def pulse_count(self) -> int:
         with self._lock:
@@ -251,33 +246,13 @@ class GpioWinch(HomeWitnessing):
     def hand_move(self, depth_m: float) -> None:
         """An operator's move (the RC stick): like `jog`, allowed while the witnesses
         disagree, since an operator's haul home is what can make them agree again."""
-        line = self.line_m
+        line = self.depth_m
         if depth_m <= 0.0:
             self.jog(Direction.HAUL_IN)
         elif depth_m > line:
             self.jog(Direction.PAY_OUT, by_m=depth_m - line)
         else:
             self.jog(Direction.HAUL_IN, by_m=line - depth_m)
-
-    def _encoder_faulted(self, reason: str) -> None:
-        self._distrusted(f"encoder fault: {reason}; the count is no longer trusted")
-        self._summarise_ignored()
-
-    def _summarise_ignored(self) -> None:
-        """While the encoder is faulted: once a second at most, the pulses not counted."""
-        self._summary = None
-        with self._lock:
-            ignored, bad = self._ignored, self._encoder_bad
-        if ignored > self._ignored_told:
-            _log.warning(
-                "winch encoder fault: pulses not counted",
-                pulses=ignored - self._ignored_told,
-                since_fault=ignored,
-                fault=bad,
-            )
-            self._ignored_told = ignored
-        if bad is not None and not self._closed:
-            self._summary = self._loop.call_later(1.0, self._summarise_ignored)
 
     def jog(self, direction: Direction, *, by_m: float | None = None) -> None:
         """Run the motor by hand (calibration): pay out or haul in until `stop`, or
@@ -297,7 +272,7 @@ class GpioWinch(HomeWitnessing):
             self._changed.set()
             return
         with self._lock:
-            self._goal = _Goal.TARGET
+            self._goal = Goal.TARGET
             if by_m is not None:
                 target = self._edge() + int(direction) * max(1, self.drum.count_at(by_m))
             else:
@@ -324,13 +299,13 @@ class GpioWinch(HomeWitnessing):
                     self._schedule_settle(self._closed_since or self._clock.monotonic())
                 return
             with self._lock:
-                self._goal = _Goal.HOME
+                self._goal = Goal.HOME
             self._start_motor(Direction.HAUL_IN, None, homing=homing)
             return
         if target == count:
             return
         with self._lock:
-            self._goal = _Goal.TARGET
+            self._goal = Goal.TARGET
             self._target_count = min(target, self._max_count)
         direction = Direction.PAY_OUT if target > count else Direction.HAUL_IN
         self._start_motor(direction, None, homing=False, slow=slow)
@@ -345,12 +320,19 @@ class GpioWinch(HomeWitnessing):
         self._approach_duty = nominal * APPROACH_FRACTION  # a slow motion's whole duty
         self._duty = self._approach_duty if slow else (duty or nominal)
         deadline = None
-        if self._goal is _Goal.HOME:
+        if self._goal is Goal.HOME:
             # Line out / haul speed + margin; from an unknown position (start-up
             # homing) the whole line.
             line = self.max_line_m if homing or not self._homed else max(self.line_m, 0.0)
             deadline = now + line / cfg.line_speed_m_s + cfg.home_margin_s
-        self._guard = MotionGuard(self._limits, started_at=now, home_deadline=deadline)
+        self._guard = MotionGuard(
+            self._limits,
+            started_at=now,
+            home_deadline=deadline,
+            direction=int(direction),
+            full_speed_m_s=cfg.line_speed_m_s / nominal,  # line_speed_m_s is at the duty
+            prior=self._estimate,
+        )
         self._started_at = now
         self._arrived_count = None
         self._told_open_at_zero = False
@@ -385,14 +367,21 @@ class GpioWinch(HomeWitnessing):
                 self._tick = None
             with self._lock:
                 self._goal = None
-            self._guard = None
+            guard, self._guard = self._guard, None
+            if guard is not None:
+                # With the count in doubt, a motion that ran without a counted pulse
+                # (stopped by the switch, a verdict, an operator) moved the estimate.
+                moved = guard.stopped(self._clock.monotonic())
+                if moved is not None:
+                    self._estimate = moved
 
     def _fail(self, fault: str, **detail: Any) -> None:
         self._halt()
         self._fault = fault
         self._changed.set()
-        _log.error("winch fault: motor stopped", fault=fault, line_m=round(self.line_m, 3))
-        self._record("winch_fault", fault=fault, line_m=round(self.line_m, 3), **detail)
+        where = self._where()
+        _log.error("winch fault: motor stopped", fault=fault, **where)
+        self._record("winch_fault", fault=fault, **{**where, **detail})
 
     def _emergency_stop(self) -> None:
         """atexit: whatever state the loop was in, the motor goes off."""
@@ -432,9 +421,14 @@ class GpioWinch(HomeWitnessing):
             return
         self._watchdog.feed()
         now = self._clock.monotonic()
-        fault = guard.check(now, self._sensing.current_a(motor_on=True), self.line_m)
+        current = self._sensing.current_a(motor_on=True)
+        fault = guard.check(now, current, self.line_m, duty=self._bridge.duty)
         if fault is not None:
-            self._fail(fault, peak_current_a=round(guard.peak_current_a, 3))
+            peak = round(guard.peak_current_a, 3)
+            if guard.silence is not None:
+                self._silent_drum(guard.silence, peak_current_a=peak)
+            else:
+                self._fail(fault, peak_current_a=peak)
             return
         self._set_power(now)
         self._schedule_tick()
@@ -445,7 +439,7 @@ class GpioWinch(HomeWitnessing):
         if ramp > 0:
             duty *= min(1.0, RAMP_FLOOR + (1 - RAMP_FLOOR) * (now - self._started_at) / ramp)
         with self._lock:
-            to_target = self._goal is _Goal.TARGET
+            to_target = self._goal is Goal.TARGET
             remaining = abs(self._target_count - self._edge())
         # The last approach_m, and at least the last pulse: a count cannot see closer.
         approach = max(1, math.ceil(self._cfg.approach_m / self.drum.metres_per_pulse))
@@ -453,89 +447,10 @@ class GpioWinch(HomeWitnessing):
             duty = min(duty, self._approach_duty)
         self._bridge.set_duty(duty)
 
-    # ------------------------------------------------------------ gpiozero's thread
-
-    def _pulse_thread(self) -> None:
-        with self._lock:
-            # Single channel: the direction is the motor's, or the last one it had
-            # (a drum still turning after a stop).
-            running = self._bridge.direction
-            step = int(running) if running is not Direction.STOPPED else int(self._last_direction)
-        self._count_thread(step)
-
-    def _step_out_thread(self) -> None:
-        self._count_thread(1)
-
-    def _step_in_thread(self) -> None:
-        self._count_thread(-1)
-
-    def _count_thread(self, step: int) -> None:
-        stop = None
-        now = self._clock.monotonic()
-        with self._lock:
-            if self._encoder_bad is not None:
-                self._ignored += 1  # a storm: the least possible, and nothing to the loop
-                return
-            bad = self._encoder.pulse(now, self._bridge.direction is not Direction.STOPPED)
-            if bad is not None:
-                self._encoder_bad = bad
-                self._bridge.stop()
-        if bad is not None:
-            self._tell_loop(self._encoder_faulted, bad)
-            return
-        with self._lock:
-            self._count += step
-            self._last_step = step
-            count = self._edge()
-            running = self._bridge.direction
-            closed = self._switch_now
-            if running is Direction.PAY_OUT and count >= self._max_count:
-                stop = "end of line"
-            elif running is not Direction.STOPPED and self._count_known:
-                # The witnesses, at every edge of a motion: a switch still closed
-                # well into a descent, or hauling on past zero with it open.
-                if running is Direction.HAUL_IN and closed and self._count <= 0:
-                    stop = "home"  # the switch was already closed: the count says we are in
-                else:
-                    stop = self._witnesses.disagreement(
-                        self.drum.line_m(count), closed, int(running)
-                    )
-            if stop is None and (
-                self._goal is _Goal.TARGET
-                and (
-                    (running is Direction.PAY_OUT and count >= self._target_count)
-                    or (running is Direction.HAUL_IN and count <= self._target_count)
-                )
-            ):
-                stop = "arrived"
-            if stop is not None:
-                self._bridge.stop()
-        self._tell_loop(self._pulse_seen, count, stop)
-
-    def _switch_closed_thread(self) -> None:
-        with self._lock:
-            self._switch_now = True
-            running = self._bridge.direction
-            if running is Direction.PAY_OUT and self._edge() <= 0:
-                # Still within the first pulse of leaving the block: the switch
-                # bouncing open, not a snag.
-                running = Direction.STOPPED
-            elif running is not Direction.STOPPED:
-                self._bridge.stop()
-        self._tell_loop(self._switch_seen, True, running)
-
-    def _switch_opened_thread(self) -> None:
-        with self._lock:
-            self._switch_now = False
-        self._tell_loop(self._switch_seen, False, self._bridge.direction)
-
-    def _tell_loop(self, callback: Callable[..., None], *args: Any) -> None:
-        with contextlib.suppress(RuntimeError):  # the loop is closed: the motor is already off
-            self._loop.call_soon_threadsafe(callback, *args)
-
     # ------------------------------------------------------------ handed to the loop
 
     def _pulse_seen(self, count: int, stop: str | None) -> None:
+        self._estimate = None  # a counted pulse: the count says where the probe is again
         if self._guard is not None:
             self._guard.pulse(self._clock.monotonic())
         if stop == "end of line":
@@ -562,7 +477,7 @@ class GpioWinch(HomeWitnessing):
                 line_m=round(self.drum.line_m(count), 3),
             )
         elif (
-            self._goal is _Goal.HOME
+            self._goal is Goal.HOME
             and count <= 0
             and self._count_known
             and not self.at_home

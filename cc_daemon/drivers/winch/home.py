@@ -22,6 +22,7 @@ import structlog
 
 from cc_daemon.config import WinchGpioSettings
 from cc_daemon.core.winch.drum import Drum
+from cc_daemon.core.winch.silence import DepthEstimate
 from cc_daemon.core.winch.status import HOMING_FAILED, WinchStatus
 from cc_daemon.core.winch.witness import Witnesses
 from cc_daemon.drivers.winch.devices import GpioDevices
@@ -50,6 +51,7 @@ class HomeWitnessing:
     _count_known: bool
     _switch_now: bool
     _encoder_bad: str | None
+    _estimate: DepthEstimate | None
     _ignored: int
     _ignored_told: int
     _witnesses: Witnesses
@@ -214,6 +216,7 @@ class HomeWitnessing:
             return
         line = self.line_m
         self._zero_at_switch()
+        self._estimate = None  # both witnesses say home: no doubt left about the depth
         self._verified = True
         self._homed = True
         _log.info("winch home: limit switch closed", counted_line_m=round(line, 3))
@@ -226,13 +229,18 @@ class HomeWitnessing:
             self._distrust = None
             self._fault = None
 
-    def _distrusted(self, reason: str) -> None:
+    def _distrusted(self, reason: str, **detail: Any) -> None:
         """The count and the switch contradict each other: motor off, no home until
         both agree again (an operator's haul), the fault journaled with both figures."""
         self._cancel_settle()
         self._verified = False
         self._distrust = reason
-        self._fail(reason, counted_line_m=round(self.line_m, 3), switch_closed=self.switch_closed)
+        self._fail(
+            reason,
+            counted_line_m=round(self.line_m, 3),
+            switch_closed=self.switch_closed,
+            **detail,
+        )
 
     def _opened_while_stopped(self) -> None:
         if self.switch_closed or self._bridge.direction is not Direction.STOPPED:
