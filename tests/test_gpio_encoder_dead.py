@@ -249,11 +249,13 @@ async def test_a_dead_encoder_paying_out_is_reckoned_deeper() -> None:
         assert fault["depth_low_m"] <= rig.drum.line_m <= fault["depth_high_m"]
 
 
-async def test_a_genuine_jam_on_the_way_up_is_still_a_jam() -> None:
+@pytest.mark.parametrize("running_a", [1.05, 1.2], ids=["read", "past-the-sensors-range"])
+async def test_a_genuine_jam_on_the_way_up_is_still_a_jam(running_a: float) -> None:
     async with gpio_rig(adc=True, faults=DrumFaults(jam_in_at_m=1.7)) as rig:
-        # Jammed, the mock motor draws 4 x its running current: 4.2 A, over max_current_a
-        # and still inside what the ACS712-5A reads on 3.3 V (4.3 A; more is a rail).
-        rig.drum.running_current_a = 1.05
+        # Jammed, the mock motor draws 4 x its running current: 4.2 A is over
+        # max_current_a and read as it is; 4.8 A is past the 4.29 A the ACS712-5A reads
+        # on 3.3 V, at the ADC's top rail: the most it can say, still a jam.
+        rig.drum.running_current_a = running_a
         rig.winch.move_to(2.0)
         await rig.settle()
         rig.winch.move_to(0.0)
