@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import time
 from collections.abc import AsyncIterator, Iterator, MutableMapping
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,7 @@ from cc_daemon.core.winch.sensors import (
     supply_fault,
 )
 from cc_daemon.drivers.winch.devices import open_devices
-from cc_daemon.drivers.winch.sensing import SUPPLY_EVERY, MotorSensing
+from cc_daemon.drivers.winch.sensing import SUPPLY_EVERY, ZERO_SETTLE_S, MotorSensing
 from cc_daemon.sim.drum import DrumFaults, SimulatedDrum
 from tests.gpiokit import GpioRig, gpio_rig, settings
 
@@ -365,3 +366,25 @@ async def test_an_adc_that_stops_answering_mid_move_is_a_sensor_fault_not_a_stop
         assert rig.winch.status().fault is None
         [event] = sensor_faults(rig)
         assert event["sensor"] == "current" and "could not be read" in event["fault"]
+
+
+def test_the_zero_is_not_judged_while_a_stopped_windings_current_dies_away() -> None:
+    # A move replacing a running one starts straight after the stop: 2 A then may be
+    # the winding's current, not the sensor. Once the motor has been off long enough,
+    # the same reading is the sensor's fault.
+    with sensing(DrumFaults(current_adc=0.87), [100.0]) as (sense, events):
+        sense.zero_check(ZERO_SETTLE_S / 4)
+        assert sense.fault is None and events == []
+        sense.zero_check(ZERO_SETTLE_S)
+        assert sense.fault is not None and "with the motor off" in sense.fault
+
+
+async def test_the_h_bridge_remembers_when_a_running_motor_stopped() -> None:
+    async with gpio_rig() as rig:
+        bridge = rig.winch._bridge
+        before = bridge.stopped_at
+        bridge.stop()  # already stopped: not a stop of a running motor
+        assert bridge.stopped_at == before
+        rig.winch.move_to(0.5)
+        rig.winch.stop()
+        assert time.monotonic() - bridge.stopped_at < 1.0

@@ -28,6 +28,7 @@ import contextlib
 import math
 import sys
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -314,7 +315,9 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self, direction: Direction, duty: float | None, *, homing: bool, slow: bool = False
     ) -> None:
         cfg = self._cfg
-        self._sensing.zero_check()  # the motor is off: a sensor far from 0 A is faulty
+        # The motor is off: a sensor far from 0 A is faulty (once the winding's current
+        # has died away: a move replacing a running one comes straight after its stop).
+        self._sensing.zero_check(time.monotonic() - self._bridge.stopped_at)
         now = self._clock.monotonic()
         nominal = cfg.payout_duty if direction is Direction.PAY_OUT else cfg.haulin_duty
         self._approach_duty = nominal * APPROACH_FRACTION  # a slow motion's whole duty

@@ -9,6 +9,7 @@ decides when to move: the winch does.
 from __future__ import annotations
 
 import threading
+import time
 from enum import IntEnum
 from typing import Protocol
 
@@ -42,6 +43,7 @@ class HBridge:
         self._direction = Direction.STOPPED
         self._duty = 0.0
         self._closed = False
+        self.stopped_at = -1e9  # time.monotonic() of the last stop of a running motor
         self.stop()
 
     @property
@@ -75,6 +77,8 @@ class HBridge:
         """Power off, then both direction pins low. Returns the direction it was running in."""
         with self._lock:
             was = self._direction
+            if was is not Direction.STOPPED:
+                self.stopped_at = time.monotonic()
             self._direction = Direction.STOPPED
             self._duty = 0.0
             try:

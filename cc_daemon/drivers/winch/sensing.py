@@ -18,6 +18,7 @@ be read (that is the same fault: the pulses still guard the motor).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -37,6 +38,9 @@ _log = structlog.get_logger("cc_daemon.winch.gpio")
 # current's readings take about 1 % of a core while the motor runs, and the supply
 # adds a twentieth of that.
 SUPPLY_EVERY = 20
+# A motor stopped this recently may still carry its winding's current (L/R is about a
+# millisecond for a small DC motor, the flyback diodes' decay a few): not yet a zero.
+ZERO_SETTLE_S = 0.02
 SUMMARY_S = 1.0  # a supply still out of range is summed up in the log this often at most
 
 
@@ -104,17 +108,20 @@ class MotorSensing:
         self._previous_a = amps if motor_on else None
         return amps
 
-    def zero_check(self) -> None:
+    def zero_check(self, off_for_s: float = math.inf) -> None:
         """Before a move, the motor off: the current far from 0 A, or the supply out of
         its range, is a sensor fault before the move. Never raises: a sensor that
         cannot be read is a faulty sensor, not a reason to refuse the move (the
-        pulses still guard it). Starts a new motion for the jump rule."""
+        pulses still guard it). Starts a new motion for the jump rule. A motor off
+        for less than `ZERO_SETTLE_S` (a move replacing a running one) may still
+        carry its winding's current: the zero is not judged then."""
         self._previous_a = None
         self._running_reads = 0
-        try:
-            self.current_a(motor_on=False)
-        except Exception as exc:
-            self._found("current", f"motor current sensor could not be read: {_why(exc)}")
+        if off_for_s >= ZERO_SETTLE_S:
+            try:
+                self.current_a(motor_on=False)
+            except Exception as exc:
+                self._found("current", f"motor current sensor could not be read: {_why(exc)}")
         self.check_supply()
 
     def supply_v(self) -> float | None:
