@@ -269,5 +269,5 @@ def model_events(
             frame = stream[pos : pos + 26]
             result = model_frame(frame, cls)
         out.append(ModelEvent(pos, frame, result))
-        pos += length if not isinstance(result, str) else 1
+        pos += len(frame) if not isinstance(result, str) else 1  # 26 for a firmware M
     return out

@@ -125,6 +125,18 @@ def test_any_chunking_of_a_valid_stream_yields_the_same_messages(
     assert parser.stats.bytes_received == len(stream)
 
 
+# Found by hypothesis: a firmware (26-byte) M whose last checksum byte is a sync
+# byte; the model once resumed after 25 bytes and saw a truncated frame there.
+FIRMWARE_M_ENDING_IN_P = b"PM" + bytes(12) + b"\x01\xf69\x00\x02\xadZ\x17d\xff\x04P"
+
+
+def test_a_firmware_m_ending_in_a_sync_byte_is_one_frame_to_parser_and_model() -> None:
+    [event] = cs.model_events(FIRMWARE_M_ENDING_IN_P, Sender.AUTOPILOT)
+    assert isinstance(event.result, StartMeasuring) and event.result.mode == 255
+    for split in ([FIRMWARE_M_ENDING_IN_P], [FIRMWARE_M_ENDING_IN_P[:25], b"P"]):
+        assert as_comparable(run_events(Parser(Sender.AUTOPILOT), split)) == [event.result]
+
+
 @relaxed
 @given(noisy_streams(), cs.senders, st.booleans(), st.data())
 def test_parser_follows_the_resynchronisation_rule(
