@@ -23,8 +23,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+import structlog
 
 from cc_daemon.core.protocol import StartMeasuring, Telemetry
+from cc_daemon.daemon.restart import note_interrupted
 from cc_daemon.store import Journal, spillover
 from tests.journalkit import full_journal
 
@@ -285,3 +287,20 @@ def test_a_frozen_filesystem_shows_as_not_writable_until_it_thaws(tmp_path: Path
     assert "frozen" in during["error"]
     assert result["after"] == {"error": None}
     assert result["casts"] == 1
+
+
+def test_an_earlier_runs_spill_files_are_said_at_start(tmp_path: Path) -> None:
+    db = tmp_path / "j.db"
+    with Journal(db):
+        pass
+    left = tmp_path / "j-unwritten-20261125T101500Z.jsonl"
+    left.write_text('{"table": "fixes", "row": [1]}\n' * 3)
+    (tmp_path / "other-unwritten-20261125T101500Z.jsonl").write_text("{}\n")  # not ours
+    with Journal(db) as journal, structlog.testing.capture_logs() as logs:
+        assert journal.leftover_spill_files() == [left]
+        note_interrupted(journal)
+    [said] = [e for e in logs if str(e["event"]).startswith("an earlier run left rows only")]
+    assert said["log_level"] == "error" and said["files"] == [str(left)] and said["rows"] == 3
+    [(detail,)] = query(db, "SELECT detail_json FROM events WHERE kind = 'spill_files_left'")
+    assert json.loads(str(detail)) == {"files": [str(left)], "rows": 3}
+    assert left.exists()  # kept: its rows are nowhere else

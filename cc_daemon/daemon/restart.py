@@ -8,9 +8,13 @@ hands the daemon the stations to release; the daemon (`casting`) sends `R-F`
 for each once the link is up and the winch verifies home (its start-up homing
 has run), else holds the station with `R-L`, and journals `cast_recovered`.
 An `R-F` the firmware is not waiting for is harmless (docs/protocol.md).
+Rows an earlier run could only put in spill files (its journal never came back)
+are said too, with the files (`spill_files_left`): they are not in the journal.
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import structlog
 
@@ -36,6 +40,7 @@ def note_interrupted(journal: Journal) -> list[InterruptedCast]:
             pid=died.pid,
             opened_wall_s=died.opened_wall_s,
         )
+    _left_in_spill_files(journal)
     for cast in casts:
         depth = None if cast.last_depth_m is None else round(cast.last_depth_m, 3)
         _log.error(
@@ -47,3 +52,27 @@ def note_interrupted(journal: Journal) -> list[InterruptedCast]:
             "cast_interrupted", cast_id=cast.cast_id, last_depth_m=depth, samples=cast.samples
         )
     return casts
+
+
+def _left_in_spill_files(journal: Journal) -> None:
+    """Rows an earlier run could only spill (its journal never came back before it
+    ended): not in the journal. Said at start, at error and as an event, with where."""
+    try:
+        files = journal.leftover_spill_files()
+    except Exception:
+        _log.error("could not look for an earlier run's spill files", exc_info=True)
+        return
+    if not files:
+        return
+    lines = 0
+    for path in files:
+        with contextlib.suppress(OSError):
+            lines += path.read_bytes().count(b"\n")
+    paths = [str(path) for path in files]
+    _log.error(
+        "an earlier run left rows only in spill files, not in the journal: keep these "
+        "files (JSON lines, one row each) with the survey's data",
+        files=paths,
+        rows=lines,
+    )
+    journal.record_event("spill_files_left", files=paths, rows=lines)

@@ -12,6 +12,7 @@ the writer thread only, except `_spill` at close.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from abc import ABC, abstractmethod
 from pathlib import Path
@@ -69,6 +70,16 @@ class SpillOver(RowBuffer, ABC):
             lambda: spill_directories(self._active, self._spill_dir),
             self._file_mode,
         )
+
+    def leftover_spill_files(self) -> list[Path]:
+        """Spill files of this journal that no run replayed (an earlier run ended, or
+        died, before the journal came back): in every place a spill may go, oldest first."""
+        mine = set(self._spilled.files)
+        found: set[Path] = set()
+        for directory in spill_directories(self._active, self._spill_dir):
+            with contextlib.suppress(OSError):
+                found.update(directory.glob(f"{self.path.stem}-unwritten-*.jsonl"))
+        return sorted(found - mine, key=lambda p: (p.name, str(p)))
 
     def _episode_ended(self, **detail: object) -> None:
         """The journal is writable again after failing (`detail` says how it went)."""
