@@ -21,6 +21,7 @@ import pytest
 import structlog
 
 from cc_daemon.cli.app import main
+from cc_daemon.cli.status.view import status_lines
 from cc_daemon.cli.winch import _line
 from cc_daemon.config import load_settings
 from cc_daemon.core.errors import ConfigError
@@ -272,12 +273,18 @@ async def test_a_noisy_current_sensor_is_one_fault_and_the_move_ends_by_pulses()
         assert status.fault is None and abs(status.depth_m - 1.0) <= MPP / 2
         rig.winch.move_to(0.0)
         await rig.settle()
-        assert rig.winch.status().at_home and rig.winch.status().fault is None
+        home = rig.winch.status()
+        assert home.at_home and home.fault is None
     [event] = sensor_faults(rig)
     assert event["sensor"] == "current" and "jumped" in event["fault"]
     assert event["fallback"] == "stall-by-pulses"
     assert [e["event"] for e in logs].count(FALLBACK) == 1
     assert "jumped" in (rig.winch.sensor_fault or "")
+    # The status document and `cc-daemon status` say it too, the winch still at home.
+    assert home.sensor_fault == rig.winch.sensor_fault
+    doc = {"winch": {"backend": "gpio", "at_home": True, "sensor_fault": home.sensor_fault}}
+    winch_row = dict(status_lines(doc))["winch"]
+    assert winch_row.startswith("gpio: stopped, home, SENSOR FAULT (overcurrent by pulses only)")
 
 
 async def test_a_jam_read_by_a_sane_sensor_is_still_an_overcurrent_stall() -> None:

@@ -123,6 +123,7 @@ def _winch(src: Source) -> dict[str, Any]:
         "moving": w.moving if w else None,
         "at_home": w.at_home if w else None,
         "fault": (w.fault if w else None) or src.snapshot.winch_fault,
+        "sensor_fault": w.sensor_fault if w else None,
     }
 
 

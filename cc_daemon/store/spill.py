@@ -32,26 +32,28 @@ DEFAULT_FILE_MODE = 0o640
 SYSTEM_RUNTIME_DIR = Path("/run/cc-daemon")
 
 
-def runtime_directories() -> list[Path]:
-    """The runtime directories, systemd's first: memory-backed, working when a card fails."""
+def runtime_directories(*, make: bool = True) -> list[Path]:
+    """The runtime directories, systemd's first: memory-backed, working when a card fails.
+    `make`: ours are made if missing (to spill into; not to look for files)."""
     ours = [SYSTEM_RUNTIME_DIR]  # ours to make if missing
     xdg = os.environ.get("XDG_RUNTIME_DIR", "")
     if xdg:
         ours.insert(0, Path(xdg) / "cc-daemon")
-    for directory in ours:
+    for directory in ours if make else ():
         with contextlib.suppress(OSError):
             directory.mkdir(mode=0o750, exist_ok=True)
     runtime = os.environ.get("RUNTIME_DIRECTORY", "").split(":")[0]
     return [Path(runtime), *ours] if runtime else ours
 
 
-def spill_directories(journal: Path, configured: Path | None) -> list[Path]:
-    """Where a spill file may go, in order of preference (see the module's docstring)."""
+def spill_directories(journal: Path, configured: Path | None, *, make: bool = True) -> list[Path]:
+    """Where a spill file may go, in order of preference (see the module's docstring);
+    `make`: the runtime directories are made if missing (not when only looking)."""
     candidates = [journal.parent]
     if configured is not None:
         candidates.append(configured)
     candidates += state_directories()
-    candidates += runtime_directories()
+    candidates += runtime_directories(make=make)
     return data_directories(candidates)
 
 

@@ -76,7 +76,7 @@ class SpillOver(RowBuffer, ABC):
         died, before the journal came back): in every place a spill may go, oldest first."""
         mine = set(self._spilled.files)
         found: set[Path] = set()
-        for directory in spill_directories(self._active, self._spill_dir):
+        for directory in spill_directories(self._active, self._spill_dir, make=False):
             with contextlib.suppress(OSError):
                 found.update(directory.glob(f"{self.path.stem}-unwritten-*.jsonl"))
         return sorted(found - mine, key=lambda p: (p.name, str(p)))

@@ -113,10 +113,13 @@ def status_lines(doc: Document) -> list[tuple[str, str]]:
     motion = "moving" if w.get("moving") else "stopped"
     home = ", home" if w.get("at_home") else ""
     fault = w.get("fault")
+    sensor = w.get("sensor_fault")
     rows.append(
         (
             "winch",
-            f"{w.get('backend', '?')}: {motion}{home}" + (f", FAULT: {fault}" if fault else ""),
+            f"{w.get('backend', '?')}: {motion}{home}"
+            + (f", FAULT: {fault}" if fault else "")
+            + (f", SENSOR FAULT (overcurrent by pulses only): {sensor}" if sensor else ""),
         )
     )
     j = doc.get("journal")

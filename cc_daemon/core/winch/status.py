@@ -26,6 +26,9 @@ class WinchStatus(NamedTuple):
     moving: bool
     at_home: bool  # the home limit switch (or the model of it) is made
     fault: str | None  # why the winch last stopped short, if it did
+    # A sensor found untrustworthy and no longer used (the motor current or the
+    # supply: overcurrent by pulses only); the winch still moves.
+    sensor_fault: str | None = None
 
 
 HOMING_FAILED = "homing failed"  # how a start-up homing fault's text begins

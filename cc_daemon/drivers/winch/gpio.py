@@ -166,6 +166,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             # A standing disagreement is the fault, except while an operator's
             # hand haul runs (it must not stop the haul that can clear it).
             fault=self._fault or (self._distrust if not running else None),
+            sensor_fault=self._sensing.fault,
         )
 
     def move_to(self, depth_m: float, *, slow: bool = False) -> None:
