@@ -206,7 +206,9 @@ async def test_an_operators_haul_after_the_verdict_follows_the_probe_and_the_swi
         assert status.fault is not None and "witnesses disagree" in status.fault
         assert not status.at_home
         assert status.depth_m <= 2 * RECKONING_TOLERANCE_M  # the reckoning says near home
-        rig.winch.jog(Direction.HAUL_IN)  # the switch closed, the count not trusted
+        # The switch closed, the count not trusted: refused, saying what is left to do.
+        with pytest.raises(WinchFault, match="cc-daemon release"):
+            rig.winch.jog(Direction.HAUL_IN)
         assert rig.drum.motor() == (0, 0.0)
 
 

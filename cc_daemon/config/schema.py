@@ -7,6 +7,7 @@ only `loading.load_settings` looks at files and the environment.
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -39,7 +40,9 @@ from cc_daemon.config.rules import (
     _upper,
 )
 from cc_daemon.config.sonde import SondeSettings
+from cc_daemon.core.winch.encoder import max_pulse_rate
 from cc_daemon.core.winch.sensors import RAIL_MARGIN
+from cc_daemon.core.winch.silence import TURNING_MIN_A
 
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
 # docs/configuration.md; tests keep both in step with these models.
@@ -129,9 +132,12 @@ class WinchGpioSettings(BaseModel):
     # Safety times have physical upper bounds (docs/gpio-winch.md "Bounds").
     stall_timeout_s: Annotated[float, Field(gt=0, le=10)] = 2.0
     home_margin_s: Annotated[float, Field(ge=0, le=120)] = 10.0
-    count_tolerance_m: _Positive = 0.5
+    # A count 5 m off at home is no count (and its coasting allowance would let a
+    # pulse storm of ~35 pulses pass as a drum).
+    count_tolerance_m: Annotated[float, Field(gt=0, le=5)] = 0.5
     home_at_start: bool = True
-    loop_watchdog_s: Annotated[float, Field(ge=0.05, le=5)] = 1.0
+    # At least four of the winch's 50 ms feeding ticks: any less trips on every move.
+    loop_watchdog_s: Annotated[float, Field(ge=0.2, le=5)] = 1.0
     adc: bool = False
     adc_spi_device: Annotated[int, Field(ge=0, le=1)] = 0
     voltage_channel: Annotated[int, Field(ge=0, le=7)] = 0
@@ -205,21 +211,51 @@ class WinchGpioSettings(BaseModel):
                     "current_zero_v",
                     "adc_vref_v",
                 )
+            if self.current_zero_v <= self.adc_vref_v * RAIL_MARGIN:
+                raise _impossible(
+                    "{0} must be above the ADC's bottom rail, {1} x "
+                    + f"{RAIL_MARGIN:g} (0 A would read at the rail: every zero check a fault)",
+                    "current_zero_v",
+                    "adc_vref_v",
+                )
         if self.supply_min_v >= self.supply_max_v:
             raise _impossible(
                 "{0} must be below {1} (the supply's range would be empty)",
                 "supply_min_v",
                 "supply_max_v",
             )
+        self._check_debounce()
         if self.adc:
             self._check_supply_range()
             self._check_current_range()
         return self
 
+    def _check_debounce(self) -> None:
+        """A debounce as long as half the pulse period at full speed loses pulses."""
+        metres_per_pulse = math.pi * self.drum_diameter_m / self.pulses_per_rev
+        lowest = min(self.payout_duty, self.haulin_duty)
+        period_s = 1 / max_pulse_rate(self.line_speed_m_s, lowest, metres_per_pulse)
+        if self.pulse_debounce_s >= period_s / 2:
+            raise _impossible(
+                "{0} must be under half the pulse period at full speed, "
+                + f"{period_s / 2:.4g} s from {{1}}, {{2}} and {{3}} (longer loses pulses)",
+                "pulse_debounce_s",
+                "line_speed_m_s",
+                "drum_diameter_m",
+                "pulses_per_rev",
+            )
+
     def _check_current_range(self) -> None:
         """An overcurrent the sensor cannot read could never be seen: max_current_a must
         be below the most the sensor reads before the ADC's top rail."""
         top_a = (self.adc_vref_v * (1 - RAIL_MARGIN) - self.current_zero_v) / self.current_v_per_a
+        if self.max_current_a <= TURNING_MIN_A:
+            raise _impossible(
+                "{0} must be above "
+                + f"{TURNING_MIN_A:g} A, the least a turning motor draws (a silent drum "
+                + "could never be told from a jam)",
+                "max_current_a",
+            )
         if self.max_current_a >= top_a:
             raise _impossible(
                 "{0} must be below the most the current sensor reads, ({1} - {2}) / {3} = "
@@ -243,6 +279,12 @@ class WinchGpioSettings(BaseModel):
                 "adc_vref_v",
                 "divider_r1_ohm",
                 "divider_r2_ohm",
+            )
+        if self.supply_min_v <= full_scale * RAIL_MARGIN:
+            raise _impossible(
+                "{0} must be above the ADC's bottom rail through the divider, "
+                + f"{full_scale * RAIL_MARGIN:.3f} V (a dead channel reading 0 V would pass)",
+                "supply_min_v",
             )
         step = 2 * full_scale / 1024  # two steps of the 10-bit MCP3008
         if self.supply_max_v - self.supply_min_v < step:

@@ -249,8 +249,12 @@ class SimulatedDrum:
             line = self._line
             if direction and not self._jammed(direction):
                 line += direction * duty * self.full_speed_m_s * dt
-                if not self.faults.switch_stuck_open:
-                    line = max(line, 0.0)  # the probe is up against the block
+            # The probe is up against the block. (With the switch stuck open the model
+            # lets the line go below 0, a probe wound into the block; once mended, the
+            # line is back at 0 without turning the drum: no pulses for that.)
+            mended = self._line < 0.0 and not self.faults.switch_stuck_open
+            if line < 0.0 and not self.faults.switch_stuck_open:
+                line = 0.0
             dies = self.faults.encoder_dead_in_from_m
             if direction < 0 and dies is not None and self._line > dies:
                 self.encoder_dead = True
@@ -261,6 +265,8 @@ class SimulatedDrum:
             for _ in range(STORM_PULSES_PER_STEP):  # a broken wire: pulses the drum never made
                 self._pulse(1)
         phase = math.floor(line / self.drum.metres_per_pulse + 1e-9)
+        if mended:
+            self._phase = phase
         while phase != self._phase:
             step = 1 if phase > self._phase else -1
             self._phase += step

@@ -25,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import atexit
 import contextlib
+import functools
 import math
 import sys
 import threading
@@ -46,7 +47,7 @@ from cc_daemon.drivers.winch.devices import GpioDevices
 from cc_daemon.drivers.winch.edges import EdgeCounting, Goal
 from cc_daemon.drivers.winch.home import HomeWitnessing
 from cc_daemon.drivers.winch.motor import Direction
-from cc_daemon.drivers.winch.sensing import MotorSensing
+from cc_daemon.drivers.winch.sensing import ZERO_SETTLE_S, MotorSensing
 from cc_daemon.drivers.winch.trust import CountTrust
 from cc_daemon.drivers.winch.watchdog import LoopWatchdog
 from cc_daemon.ground.clock import Clock
@@ -127,6 +128,10 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self._verified = False
         self._distrust: str | None = None
         self._settle: asyncio.TimerHandle | None = None
+        # With the count not trusted, only a switch closed by a haul in (an operator's:
+        # nothing else moves then) or an explicit homing may verify home (home.py).
+        self._haul_witnessed = False
+        self._pending: asyncio.TimerHandle | None = None  # a start waiting for the zero
         self._ignored_told = 0
         self._summary: asyncio.TimerHandle | None = None
         self._guard: MotionGuard | None = None
@@ -161,7 +166,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         return WinchStatus(
             depth_m=self.depth_m,  # the count's, or the best estimate when it is in doubt
             # Settling at the switch is still arriving: home is not yet verified.
-            moving=running or self._settle is not None,
+            moving=running or self._settle is not None or self._pending is not None,
             at_home=self.at_home,
             # A standing disagreement is the fault, except while an operator's
             # hand haul runs (it must not stop the haul that can clear it).
@@ -269,9 +274,16 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             return
         if direction is Direction.HAUL_IN and self.switch_closed and self._encoder_bad:
             # Neither witness could stop it: the switch is already closed and the
-            # count is not trusted. Nothing would keep it off the block.
-            _log.error("jog refused: hauling in with the switch closed and the encoder faulted")
+            # count is not trusted. Nothing would keep it off the block; and no haul
+            # can verify home (one witness). Said to whoever asked (the stick's jog,
+            # `cc-daemon winch home` through the daemon), not only in the log.
             self._changed.set()
+            raise WinchFault(
+                "hauling in refused: the limit switch is closed and the encoder is faulted, "
+                "so nothing could stop the haul and nothing can verify home; if the probe "
+                "is on board, release the station (cc-daemon release)"
+            )
+        if direction is Direction.HAUL_IN and by_m is None and self._at_the_block():
             return
         with self._lock:
             self._goal = Goal.TARGET
@@ -316,9 +328,19 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self, direction: Direction, duty: float | None, *, homing: bool, slow: bool = False
     ) -> None:
         cfg = self._cfg
-        # The motor is off: a sensor far from 0 A is faulty (once the winding's current
-        # has died away: a move replacing a running one comes straight after its stop).
-        self._sensing.zero_check(time.monotonic() - self._bridge.stopped_at)
+        self._pending = None
+        off_for = time.monotonic() - self._bridge.stopped_at
+        if off_for < ZERO_SETTLE_S:
+            # A move replacing a running one (a cast's abort, a new target): the winding
+            # may still carry current. The start waits out the rest of ZERO_SETTLE_S so
+            # that the zero check below can judge the sensor (one stuck at its top would
+            # otherwise pass unseen and stop every move as an overcurrent).
+            start = functools.partial(self._start_pending, direction, duty, homing, slow)
+            self._pending = self._loop.call_later(ZERO_SETTLE_S - off_for, start)
+            self._changed.set()
+            return
+        # The motor is off: a sensor far from 0 A is faulty.
+        self._sensing.zero_check(off_for)
         now = self._clock.monotonic()
         nominal = cfg.payout_duty if direction is Direction.PAY_OUT else cfg.haulin_duty
         self._approach_duty = nominal * APPROACH_FRACTION  # a slow motion's whole duty
@@ -358,10 +380,41 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         )
         self._schedule_tick()
 
+    def _start_pending(
+        self, direction: Direction, duty: float | None, homing: bool, slow: bool
+    ) -> None:
+        """A start that waited for the zero; a haul in only if the switch has not
+        closed meanwhile (its edge stopped no motor: none was running)."""
+        self._pending = None
+        if direction is Direction.HAUL_IN and self._at_the_block():
+            with self._lock:
+                self._goal = None
+            return
+        self._start_motor(direction, duty, homing=homing, slow=slow)
+
+    def _at_the_block(self) -> bool:
+        """Both witnesses say the probe is at the block (the switch closed, the count at
+        zero): a haul would only pull the motor against it until the stall rule. Home,
+        once the switch has settled."""
+        if not (
+            self.switch_closed
+            and self._count_known
+            and self._distrust is None
+            and self.line_m <= 0.0
+        ):
+            return False
+        if not self._verified and self._settle is None:
+            self._schedule_settle(self._closed_since or self._clock.monotonic())
+        self._changed.set()
+        return True
+
     # ------------------------------------------------------------ stopping
 
     def _halt(self) -> None:
         """Motor off now, and the motion over (loop side)."""
+        if self._pending is not None:  # a start waiting for the zero: never comes now
+            self._pending.cancel()
+            self._pending = None
         try:
             self._bridge.stop()
         finally:

@@ -63,6 +63,7 @@ class HomeWitnessing:
     _verified: bool
     _distrust: str | None
     _settle: asyncio.TimerHandle | None
+    _haul_witnessed: bool
 
     if TYPE_CHECKING:
 
@@ -136,6 +137,7 @@ class HomeWitnessing:
             closed = self._count_known = self._switch_now
             if closed:
                 self._count, self._last_step = 0, 1
+        self._haul_witnessed = True  # an explicit homing: the switch may set home
         if closed:
             _log.info("winch homing: the limit switch is already closed; letting it settle")
         else:
@@ -164,6 +166,7 @@ class HomeWitnessing:
         if not closed:
             self._closed_since = None
             self._verified = False
+            self._haul_witnessed = False
             self._cancel_settle()
             if running is Direction.STOPPED and self._homed:
                 self._loop.call_later(SWITCH_SETTLE_S, self._opened_while_stopped)
@@ -171,6 +174,7 @@ class HomeWitnessing:
             return
         now = self._clock.monotonic()
         self._closed_since = now
+        self._haul_witnessed = self._haul_witnessed or running is Direction.HAUL_IN
         if not self._count_known:
             # Homing from an unknown position: the switch is the only witness
             # there is, and it sets the count (still settled before home).
@@ -211,6 +215,22 @@ class HomeWitnessing:
         if self._closed_since != since or not self.switch_closed:
             return  # it opened again: a blip, not home
         reason = self._witnesses.disagreement(self.line_m, True, 0)
+        with self._lock:
+            bad = self._encoder_bad
+        if reason is None and bad is not None and not self._haul_witnessed:
+            # The count is not a witness (an encoder fault): a switch that closed with
+            # nothing hauling in (a short, a snag on the lever) would be home on one
+            # witness alone. Only a haul in that ends at the switch may say so.
+            reason = (
+                "the limit switch closed with no haul running while the count is not "
+                "trusted (an encoder fault): one witness cannot verify home"
+            )
+        estimate = self._estimate
+        if reason is None and estimate is not None and estimate.low_m > self._cfg.count_tolerance_m:
+            # The depth estimate says the probe cannot be home: the switch is wrong.
+            reason = (
+                f"the limit switch closed where the probe cannot be home: {estimate.describe()}"
+            )
         if reason is not None:
             self._distrusted(reason)
             return

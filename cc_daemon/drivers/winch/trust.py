@@ -28,6 +28,8 @@ from typing import TYPE_CHECKING, Any
 
 import structlog
 
+from cc_daemon.core.winch.drum import Drum
+from cc_daemon.core.winch.encoder import RATE_WINDOW, EncoderJudge
 from cc_daemon.core.winch.silence import DepthEstimate, Silence
 
 _log = structlog.get_logger("cc_daemon.winch.gpio")
@@ -45,6 +47,9 @@ class CountTrust:
     _summary: asyncio.TimerHandle | None
     _closed: bool
 
+    drum: Drum
+    _encoder: EncoderJudge
+
     if TYPE_CHECKING:  # GpioWinch's and HomeWitnessing's
 
         @property
@@ -56,9 +61,11 @@ class CountTrust:
 
     @property
     def depth_m(self) -> float:
-        """The probe's depth: the count's line, or the best estimate while one stands."""
+        """The probe's depth: the count's line, or the best estimate while one stands.
+        An estimate is never reported as 0 m (R-P 0 says home, and only two witnesses
+        may): at least one pulse of line, the least the count could have seen."""
         if self._estimate is not None:
-            return self._estimate.best_m
+            return max(self._estimate.best_m, self.drum.metres_per_pulse)
         return max(0.0, self.line_m)
 
     @property
@@ -72,7 +79,7 @@ class CountTrust:
         if estimate is None:
             return {"line_m": round(self.line_m, 3)}
         return {
-            "line_m": round(estimate.best_m, 3),
+            "line_m": round(self.depth_m, 3),
             "counted_line_m": round(estimate.counted_m, 3),
             "depth_low_m": round(estimate.low_m, 3),
             "depth_high_m": round(estimate.high_m, 3),
@@ -92,11 +99,27 @@ class CountTrust:
         self._summarise_ignored()
 
     def _encoder_faulted(self, reason: str) -> None:
+        """Pulses that cannot be true: the count is frozen, and before the judge could
+        tell, up to its window (or the coasting allowance) of them may have been
+        counted. The depth is an estimate from here: the count, give or take those;
+        a haul the operator runs moves it as any run without pulses does."""
+        if self._estimate is None:
+            line = self.line_m
+            doubt = (max(RATE_WINDOW, self._encoder.coast_pulses) + 1) * self.drum.metres_per_pulse
+            self._estimate = DepthEstimate(
+                best_m=max(0.0, line),
+                low_m=max(0.0, line - doubt),
+                high_m=max(0.0, line) + doubt,
+                counted_m=line,
+                reckoned=False,
+            )
         self._distrusted(f"encoder fault: {reason}; the count is no longer trusted")
         self._summarise_ignored()
 
     def _summarise_ignored(self) -> None:
         """While the encoder is faulted: once a second at most, the pulses not counted."""
+        if self._summary is not None:  # one chain of summaries, however many verdicts
+            self._summary.cancel()
         self._summary = None
         with self._lock:
             ignored, bad = self._ignored, self._encoder_bad

@@ -1,0 +1,141 @@
+"""An adversary's cases against the GPIO winch's two witnesses, its dead-encoder
+estimate and its sensor rules (a review of issue 19's work): each failed before the
+fix it names. MockFactory pins and the project's simulated drum."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from cc_daemon.config import load_settings
+from cc_daemon.core.errors import ConfigError, WinchFault
+from cc_daemon.drivers.winch.motor import Direction
+from cc_daemon.sim.drum import DrumFaults
+from tests.gpiokit import gpio_rig
+
+MPP = 3.141592653589793 * 0.09 / 2  # metres of line per pulse with the kit's drum
+
+
+async def _until(condition: Callable[[], bool], timeout: float = 10.0) -> None:
+    async with asyncio.timeout(timeout):
+        while not condition():  # noqa: ASYNC110  (the mock drum's thread sets it)
+            await asyncio.sleep(0.005)
+
+
+async def test_a_switch_that_shorts_after_a_dead_encoder_verdict_does_not_verify_home() -> None:
+    # The count is no witness once the encoder is dead: a switch that closes with no
+    # haul running (a short, a snag on the lever) is one witness, not home, no R-F.
+    async with gpio_rig(adc=True) as rig:
+        rig.drum.encoder_dead = True  # the pulse wire cut at home, before the cast
+        rig.winch.move_to(2.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and status.fault.startswith("encoder dead")
+        assert rig.drum.line_m > 0.4 and status.depth_m > 0.4
+        rig.drum.faults.switch_stuck_closed = True
+        await asyncio.sleep(0.6)  # past switch_settle_s
+        status = rig.winch.status()
+        assert not status.at_home and status.fault is not None
+        assert "one witness cannot verify home" in status.fault
+
+
+async def test_a_current_sensor_stuck_at_its_top_mid_descent_does_not_strand_the_probe() -> None:
+    # The overcurrent stop, then the abort's haul home at once: the haul waits out the
+    # 20 ms a winding needs, so the zero check finds the sensor and the pulses guard it.
+    async with gpio_rig(adc=True) as rig:
+        rig.winch.move_to(5.0)
+        await _until(lambda: rig.drum.line_m > 1.5)
+        rig.drum.faults.current_adc = 1.0
+        await rig.settle()
+        first = rig.winch.status()
+        assert first.fault is not None and "above max_current_a" in first.fault
+        rig.winch.move_to(0.0)  # what the cast machine's abort does, in the same turn
+        await rig.settle()
+        assert rig.winch.sensor_fault is not None
+        assert rig.winch.status().at_home
+
+
+async def test_dead_reckoning_never_says_0_m_with_the_switch_open() -> None:
+    # R-P 0 says home; only two witnesses may say that.
+    async with gpio_rig(adc=True, faults=DrumFaults(encoder_dead_in_from_m=0.2)) as rig:
+        rig.winch.move_to(0.45)
+        await rig.settle()
+        rig.drum.full_speed_m_s *= 0.4  # a heavy probe: the drum hauls slower than set
+        rig.winch.move_to(0.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.fault is not None and status.fault.startswith("encoder dead")
+        assert not rig.winch.switch_closed and rig.drum.line_m > 0.1
+        assert status.depth_m >= MPP
+
+
+async def test_after_a_pulse_storm_a_short_hand_haul_moves_the_estimate() -> None:
+    async with gpio_rig(adc=True, faults=DrumFaults(storm_at_m=1.0)) as rig:
+        rig.winch.move_to(3.0)
+        await rig.settle()
+        assert rig.winch.distrust is not None and "encoder fault" in rig.winch.distrust
+        estimate = rig.winch.depth_estimate
+        assert estimate is not None and estimate.low_m <= rig.drum.line_m <= estimate.high_m
+        start = rig.drum.line_m
+        rig.winch.jog(Direction.HAUL_IN)  # the operator's P-U, released before a stall
+        await _until(lambda: rig.drum.line_m < start - 0.3)
+        rig.winch.jog(Direction.STOPPED)
+        await rig.settle()
+        estimate = rig.winch.depth_estimate
+        assert estimate is not None and estimate.low_m <= rig.drum.line_m <= estimate.high_m
+        assert abs(rig.winch.status().depth_m - rig.drum.line_m) < 0.3
+
+
+async def test_after_an_idle_storm_at_home_a_haul_says_it_cannot_verify_home() -> None:
+    async with gpio_rig() as rig:
+        rig.drum.faults.storm_at_m = 0.0  # interference on the pulse wire, the winch idle
+        await _until(lambda: rig.winch.distrust is not None)
+        rig.drum.faults.storm_at_m = None
+        with pytest.raises(WinchFault, match="cc-daemon release"):
+            rig.winch.hand_move(0.0)  # `cc-daemon winch home` through the daemon, or P-U
+        assert rig.drum.motor() == (0, 0.0)
+
+
+async def test_a_haul_at_the_block_does_not_pull_against_it() -> None:
+    # Both witnesses at home: the operator's P-U runs no motor into the block.
+    async with gpio_rig() as rig:
+        assert rig.winch.status().at_home
+        rig.winch.jog(Direction.HAUL_IN)
+        assert rig.drum.motor() == (0, 0.0)
+        await rig.settle()
+        status = rig.winch.status()
+        assert status.at_home and status.fault is None
+
+
+async def test_the_smallest_loop_watchdog_accepted_can_run_the_motor() -> None:
+    async with gpio_rig(loop_watchdog_s=0.2) as rig:
+        rig.winch.move_to(2.0)
+        await rig.settle()
+        assert rig.winch.status().fault is None
+
+
+def _refused(gpio: dict[str, Any]) -> str:
+    with pytest.raises(ConfigError) as caught:
+        load_settings(None, {"winch": {"gpio": gpio}}, env={}, search_paths=())
+    return str(caught.value)
+
+
+@pytest.mark.parametrize(
+    ("gpio", "named"),
+    [
+        ({"loop_watchdog_s": 0.05}, "loop_watchdog_s = 0.05"),  # under the 50 ms ticks
+        ({"count_tolerance_m": 1000.0}, "count_tolerance_m = 1000.0"),
+        ({"adc": True, "max_current_a": 0.6}, "max_current_a = 0.6"),  # a silent drum untold
+        ({"adc": True, "current_zero_v": 0.0}, "current_zero_v = 0.0"),  # 0 A at the rail
+        ({"adc": True, "supply_min_v": 0.0}, "supply_min_v = 0.0"),  # a dead channel passes
+        ({"pulse_debounce_s": 0.5}, "pulse_debounce_s = 0.5"),  # loses pulses at speed
+    ],
+    ids=["watchdog", "tolerance", "max-current", "zero-at-rail", "supply-min-0", "debounce"],
+)
+def test_settings_that_can_never_work_exit_2_naming_the_key(
+    gpio: dict[str, Any], named: str
+) -> None:
+    assert f"winch.gpio.{named}" in _refused(gpio)
