@@ -177,7 +177,7 @@ async def test_a_crashing_background_task_does_not_touch_the_cast(
     def crash(**_: Any) -> int:
         raise RuntimeError("housekeeping bug")
 
-    monkeypatch.setattr("cc_daemon.daemon.service.flush_rate_limited", crash)
+    monkeypatch.setattr("cc_daemon.daemon.housekeeping.flush_rate_limited", crash)
     with PtyPair(tmp_path / "tty") as pty, structlog.testing.capture_logs() as logs:
         daemon = Daemon(_settings(tmp_path, pty.path))
         port = await FramePort.over_fd(pty.master_fd)

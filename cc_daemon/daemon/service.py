@@ -58,9 +58,9 @@ from cc_daemon.daemon.casting import (
     ActiveCast,
     CastRunner,
 )
+from cc_daemon.daemon.housekeeping import Housekeeping
 from cc_daemon.daemon.line_watch import LineWatch, watch_line
 from cc_daemon.daemon.preflight import make_journal
-from cc_daemon.daemon.quiet_port import QuietPort
 from cc_daemon.daemon.restart import note_interrupted
 from cc_daemon.daemon.simgate import simulation_warning
 from cc_daemon.daemon.simulators import NO_SIMULATORS, Simulators
@@ -69,7 +69,7 @@ from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.drivers.link import SerialLink
 from cc_daemon.drivers.winch.factory import hand_move, make_winch, prepare_winch
 from cc_daemon.ground.clock import Clock, SystemClock
-from cc_daemon.ground.logsetup import flush_rate_limited, output_loss
+from cc_daemon.ground.logsetup import flush_rate_limited
 from cc_daemon.store import Journal
 from cc_daemon.store.interrupted import InterruptedCast
 
@@ -79,9 +79,7 @@ if TYPE_CHECKING:
 
 _log = structlog.get_logger("cc_daemon.service")
 
-HOUSEKEEPING_TICK_S = 1.0
 SHUTDOWN_EXTEND_S = 30.0  # each EXTEND_TIMEOUT_USEC asks systemd for this much more
-CORRUPT_SUMMARY_EVERY = 10  # ticks
 
 
 class Daemon(CastRunner):
@@ -154,11 +152,15 @@ class Daemon(CastRunner):
         self.casts_aborted = 0
         self.casts_skipped = 0
         self.port_losses = 0
-        self._corrupt_reported = 0
         self._last_depth_m = 0.0
-        self._output_loss_reported = False
         self._sonde: SondeDuty | None = None
-        self._quiet = QuietPort()
+        self._housekeeping = Housekeeping(
+            clock=self._clock,
+            notifier=self._notifier,
+            port=lambda: self.link.port,
+            corrupt_frames=lambda: self._parser.stats.errors,
+            journal_event=self._journal_event,
+        )
         self._interrupted: list[InterruptedCast] = []  # stations a killed run left held
 
     # ------------------------------------------------------------ lifecycle
@@ -203,7 +205,8 @@ class Daemon(CastRunner):
                     self._keep_running("serial-link", self.link.run), name="serial-link"
                 )
                 housekeeping = tasks.create_task(
-                    self._keep_running("housekeeping", self._housekeeping), name="housekeeping"
+                    self._keep_running("housekeeping", self._housekeeping.run),
+                    name="housekeeping",
                 )
                 status = tasks.create_task(
                     self._keep_running("status", self._serve_status), name="status"
@@ -391,40 +394,8 @@ class Daemon(CastRunner):
             uptime_s=now - self._started_at,
         )
 
-    async def _housekeeping(self) -> None:
-        """Each second: rate-limited log summaries and the systemd watchdog; every
-        10 s the corrupt-frame count (journal and log)."""
-        tick = 0
-        while True:
-            await asyncio.sleep(HOUSEKEEPING_TICK_S)
-            flush_rate_limited()
-            self._notifier.watchdog()  # every second: fine for any WatchdogSec >= 2
-            self._report_output_loss()
-            quiet = self._quiet.due(self._clock.monotonic(), self.link.port)
-            if quiet is not None:
-                _log.warning(quiet, port=self.link.port)
-                self._notifier.notify(f"STATUS={quiet}")
-            tick += 1
-            if tick % CORRUPT_SUMMARY_EVERY:
-                continue
-            corrupt = self._parser.stats.errors
-            if corrupt != self._corrupt_reported:
-                new = corrupt - self._corrupt_reported
-                self._corrupt_reported = corrupt
-                _log.warning("corrupt frames received", new=new, total=corrupt)
-                self._journal_event("corrupt_frames", new=new, total=corrupt)
-
     async def _watch_line(self) -> None:
         await watch_line(self._line, self._clock, lambda: self._cast is not None)
-
-    def _report_output_loss(self) -> None:
-        """A log stream gone for good (a closed terminal): say so where it can be seen."""
-        loss = output_loss()
-        if loss is None or self._output_loss_reported:
-            return
-        self._output_loss_reported = True
-        self._journal_event("log_output_lost", error=loss.error)
-        self._notifier.notify(f"STATUS=log output lost ({loss.error}); events go to the journal")
 
     def snapshot(self) -> DaemonStatus:
         cast = self._cast
@@ -460,14 +431,14 @@ class Daemon(CastRunner):
     def _on_link_state(self, up: bool, reason: str) -> None:
         self._line.link_changed(up, self._clock.monotonic())
         if up:
-            self._quiet.opened(self._clock.monotonic())
+            self._housekeeping.port_opened(self._clock.monotonic())
             kind = "port_regained" if self.port_losses else "port_opened"
             self._journal_event(kind, port=self.link.port)
             self._release_interrupted()  # a station the previous run left the boat at
             self.ready.set()
             self._notifier.notify(f"STATUS=answering on {self.link.port}")
         else:
-            self._quiet.closed()
+            self._housekeeping.port_closed()
             self.port_losses += 1
             self._journal_event("port_lost", port=self.link.port, reason=reason)
             self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
@@ -476,9 +447,9 @@ class Daemon(CastRunner):
         for message in self._parser.events(data):  # in stream order, errors included
             if isinstance(message, CorruptFrame):
                 self._line.corrupt(self._clock.monotonic())
-                self._quiet.corrupt()
+                self._housekeeping.corrupt()
                 continue
-            self._quiet.heard()
+            self._housekeeping.heard()
             self.frames_in += 1
             try:
                 self._handle(message)
