@@ -1,5 +1,5 @@
 """A lean daemon (issue 22, docs/performance.md): it imports only what its settings
-use, and asleep it wakes at most once a second.
+use, and asleep it does not wake.
 
 A real daemon process, started as the service is (JSON log, the simulated winch,
 no sonde, no sonar), answers a P-S, idles while the kernel counts its threads'
@@ -67,11 +67,12 @@ async def test_the_daemon_imports_nothing_it_does_not_use_and_sleeps_when_idle(t
         assert await daemon.wait_exit() == 0
     finally:
         await daemon.close()
-    # The main thread: the housekeeping second only (the line watch ticked ten times
-    # a second); every other thread (the journal's writer): not once.
+    # Nothing is due: the main thread sleeps through (the line watch ticked ten times
+    # a second, then the housekeeping once; a stray wake-up is allowed); every other
+    # thread (the journal's writer): not once.
     main = after[pid] - before[pid]
     others = {tid: n - before.get(tid, 0) for tid, n in after.items() if tid != pid}
-    assert main <= IDLE_S * 1.5, (main, others)
+    assert main <= 2, (main, others)
     assert sum(others.values()) == 0, (main, others)
     modules = set(dump.read_text().split())
     # The dump is the daemon's: its own modules are in it.

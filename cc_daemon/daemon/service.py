@@ -446,8 +446,9 @@ class Daemon(CastRunner):
     def _on_data(self, data: bytes) -> None:
         for message in self._parser.events(data):  # in stream order, errors included
             if isinstance(message, CorruptFrame):
-                self._line.corrupt(self._clock.monotonic())
-                self._housekeeping.corrupt()
+                now = self._clock.monotonic()
+                self._line.corrupt(now)
+                self._housekeeping.corrupt(now)
                 continue
             self._housekeeping.heard()
             self.frames_in += 1
