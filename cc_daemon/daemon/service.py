@@ -79,8 +79,6 @@ if TYPE_CHECKING:
 
 _log = structlog.get_logger("cc_daemon.service")
 
-SHUTDOWN_EXTEND_S = 30.0  # each EXTEND_TIMEOUT_USEC asks systemd for this much more
-
 
 class Daemon(CastRunner):
     def __init__(
@@ -287,40 +285,6 @@ class Daemon(CastRunner):
     def record_event(self, kind: str, **detail: Any) -> None:
         """A journal event from outside the hub (a reload refused, say); never raises."""
         self._journal_event(kind, **detail)
-
-    async def _finish_running_cast(self) -> None:
-        """Bring a running cast home; give up only on a probe that cannot come home."""
-        cast = self._cast
-        if cast is None or cast.task is None:
-            return
-        if self._exit_code == EXIT_OK and not cast.settled.is_set():
-            _log.info("shutdown: bringing the probe home before exiting", cast_id=cast.cast_id)
-            self._execute(cast, cast.machine.abort(self._clock.monotonic(), "shutdown"))
-        settled = asyncio.ensure_future(cast.settled.wait())
-        try:
-            while not (cast.task.done() or settled.done()):
-                # Keep systemd from escalating to SIGKILL while the probe comes up.
-                self._notifier.notify(
-                    f"EXTEND_TIMEOUT_USEC={int(SHUTDOWN_EXTEND_S * 1e6)}",
-                    f"STATUS=stopping: bringing the probe home from {self._probe_depth():.1f} m",
-                )
-                await asyncio.wait(
-                    {cast.task, settled},
-                    timeout=SHUTDOWN_EXTEND_S / 3,
-                    return_when=asyncio.FIRST_COMPLETED,
-                )
-        finally:
-            settled.cancel()
-        if not cast.task.done():
-            # Stranded or failed: waiting longer cannot bring the probe home.
-            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
-            _log.critical(
-                "exiting with the probe NOT home: the winch is stopped; recover it by hand",
-                cast_id=cast.cast_id,
-                depth_m=round(self._probe_depth(), 3),
-            )
-            cast.task.cancel()
-        await asyncio.wait({cast.task})  # a cancellation of run() itself still propagates
 
     async def _close(self) -> None:
         """Stop the motor, close the journal; each step guarded so one failing
