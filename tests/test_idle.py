@@ -218,3 +218,24 @@ def test_the_watchdog_is_pinged_at_half_of_watchdog_sec(tmp_path):
             assert keeper.next_deadline(30.0) == 60.0
         finally:
             notifier.close()
+
+
+@pytest.mark.parametrize("order", ["big", "little"])
+def test_fixes_read_together_are_heard_as_each_alone(order: str):
+    # The daemon hands a run of T frames read at once to `heard_fixes`: the byte-order
+    # votes, the decision and the time returned must be those of hearing each alone.
+    one_by_one, _ = _watch()
+    together, _ = _watch()
+    stamp = 300
+    for read in range(12):  # a read every 1.1 s, a run of 1 to 4 T frames in each
+        now = 50.0 + read * 1.1
+        stamp += 1 if read % 5 else 2  # the firmware's whole-second clock
+        raw = stamp if order == "big" else (stamp & 0xFF) << 8 | stamp >> 8
+        run = [T._replace(timestamp_s=raw) for _ in range(1 + read % 4)]
+        alone = [one_by_one.heard(fix, now) for fix in run][-1]
+        assert together.heard_fixes(run, now) == alone
+        assert (together.order.order, together.order.decided) == (
+            one_by_one.order.order,
+            one_by_one.order.decided,
+        )
+    assert together.order.decided and together.order.order == order

@@ -18,6 +18,7 @@ from cc_daemon.ground.logsetup import (
     add_pending_listener,
     configure_logging,
     flush_rate_limited,
+    logs_at,
     rate_limited_due_in,
     remove_pending_listener,
     reset_logging,
@@ -170,6 +171,14 @@ def test_debug_is_logged_at_debug(clock: FakeClock) -> None:
     structlog.get_logger("cc_daemon.link").debug("frame in", type="S", timestamp_s=72)
     [line] = lines(stream)
     assert (line["event"], line["level"], line["type"]) == ("frame in", "debug", "S")
+
+
+def test_a_caller_can_ask_before_building_costly_fields(clock: FakeClock) -> None:
+    assert logs_at(logging.DEBUG)  # not configured here: structlog's own setup decides
+    json_logging(clock, "info")
+    assert not logs_at(logging.DEBUG) and logs_at(logging.INFO)
+    json_logging(clock, "debug")  # a reload to debug
+    assert logs_at(logging.DEBUG)
 
 
 def test_stdlib_logging_goes_through_the_same_chain_and_level(clock: FakeClock) -> None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import Iterator
+from logging import DEBUG
 from typing import Any
 
 import structlog
@@ -50,6 +51,7 @@ from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.drivers.link import SerialLink
 from cc_daemon.drivers.winch.factory import hand_move
 from cc_daemon.ground.clock import Clock
+from cc_daemon.ground.logsetup import logs_at
 from cc_daemon.store import Journal
 from cc_daemon.store.interrupted import InterruptedCast
 
@@ -115,7 +117,8 @@ class CastRunner:
 
     def _send(self, message: CcMessage) -> bool:
         sent = self._write_again(encode(message))
-        _log.debug("frame out", sent=sent, **as_dict(message))
+        if logs_at(DEBUG):  # asked first: the fields cost more than the question
+            _log.debug("frame out", sent=sent, **as_dict(message))
         if isinstance(message, Finished):
             self._line.finished_sent(message, self._clock.monotonic())
         return sent

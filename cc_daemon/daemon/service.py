@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import gc
 from collections.abc import Awaitable, Callable
+from logging import DEBUG
 from typing import TYPE_CHECKING, Any
 
 import structlog
@@ -69,7 +70,7 @@ from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.drivers.link import SerialLink
 from cc_daemon.drivers.winch.factory import hand_move, make_winch, prepare_winch
 from cc_daemon.ground.clock import Clock, SystemClock
-from cc_daemon.ground.logsetup import flush_rate_limited
+from cc_daemon.ground.logsetup import flush_rate_limited, logs_at
 from cc_daemon.store import Journal
 from cc_daemon.store.interrupted import InterruptedCast
 
@@ -408,7 +409,14 @@ class Daemon(CastRunner):
             self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
 
     def _on_data(self, data: bytes) -> None:
+        fixes: list[Telemetry] = []  # a run of P-T, heard as one (`_fixes`)
         for message in self._parser.events(data):  # in stream order, errors included
+            if type(message) is Telemetry:
+                fixes.append(message)
+                continue
+            if fixes:
+                self._fixes(fixes)
+                fixes = []
             if isinstance(message, CorruptFrame):
                 now = self._clock.monotonic()
                 self._line.corrupt(now)
@@ -420,24 +428,46 @@ class Daemon(CastRunner):
                 self._handle(message)
             except Exception:
                 _log.exception("error handling frame", frame=message.frame)
+        if fixes:
+            self._fixes(fixes)
+
+    def _fixes(self, fixes: list[Telemetry]) -> None:
+        """`P-T` frames read together: one instant, so heard as one (a flood's path).
+        Each counts and is heard as if alone (`LineWatch.heard_fixes`); the last is the
+        fix, and the journal keeps no other (`record_fixes`: they share an interval)."""
+        self._housekeeping.heard()
+        self.frames_in += len(fixes)
+        last = fixes[-1]
+        try:
+            now = self._clock.monotonic()
+            if logs_at(DEBUG):  # the fields of a frame cost more than the question
+                for message in fixes:
+                    _log.debug("frame in", **as_dict(message))
+            self._time.observe(self._line.heard_fixes(fixes, now), now)
+            self.last_fix = Fix(last, now, self._clock.wall())
+            with self._journaling("record_fix") as journal:
+                if journal is not None:
+                    order = self._line.order
+                    journal.record_fixes(fixes, decode=order.decode, ap_time_order=order.order)
+        except Exception:
+            _log.exception("error handling frame", frame=last.frame)
 
     # ------------------------------------------------------------ messages
 
     def _handle(self, message: Message) -> None:
         now = self._clock.monotonic()
-        _log.debug("frame in", **as_dict(message))
+        if logs_at(DEBUG):
+            _log.debug("frame in", **as_dict(message))
         self._time.observe(self._line.heard(message, now), now)
         if isinstance(message, ProbePositionRequest):
             self._send(ProbePosition(self._time.at(now), self._depth_mm(self._probe_depth())))
-        elif isinstance(message, Telemetry):
-            self._remember_fix(message, now)
         elif isinstance(message, StartMeasuring):
             self._remember_fix(message, now)
             self._line.stop_jog(now, "start-measuring")  # then as ever: home first
             self._on_start_measuring(message, now)
         elif isinstance(message, ProbeUp | ProbeDown):
             self._on_stick(Stick.UP if isinstance(message, ProbeUp) else Stick.DOWN, now)
-        else:  # the parser listens to autopilot frames only
+        else:  # the parser listens to autopilot frames only (`_on_data` takes the T's)
             _log.warning("unexpected frame from the autopilot side", frame=message.frame)
 
     def _remember_fix(self, message: Telemetry | StartMeasuring, now: float) -> None:

@@ -44,6 +44,7 @@ __all__ = [
     "add_pending_listener",
     "configure_logging",
     "flush_rate_limited",
+    "logs_at",
     "output_loss",
     "rate_limited_due_in",
     "remove_pending_listener",
@@ -333,6 +334,7 @@ class _Installed:
 
     limiter: RateLimiter | None = None
     handler: logging.Handler | None = None
+    levelno: int | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
@@ -404,6 +406,7 @@ def configure_logging(
         root.setLevel(levelno)
         limiter.on_hold = _tell_listeners
         _installed.limiter = limiter
+        _installed.levelno = levelno
 
 
 def _console_traceback(*, colors: bool) -> Callable[[TextIO, Any], None]:
@@ -443,6 +446,14 @@ def flush_rate_limited(*, everything: bool = False) -> int:
     return len(summaries)
 
 
+def logs_at(level: int) -> bool:
+    """Whether a line at `level` is written (as `configure_logging` set it; without it,
+    True: whoever configured structlog decides). For a caller whose fields cost more
+    to build than the question: a debug line per frame, under a flood of frames."""
+    levelno = _installed.levelno
+    return levelno is None or level >= levelno
+
+
 def rate_limited_due_in() -> float | None:
     """Seconds until `flush_rate_limited` has a count to report (None: none held back)."""
     limiter = _installed.limiter
@@ -457,6 +468,7 @@ def reset_logging() -> None:
             logging.getLogger().setLevel(logging.WARNING)  # the standard library's default
         _installed.handler = None
         _installed.limiter = None
+        _installed.levelno = None
         structlog.reset_defaults()
     with _loss.lock:
         _loss.stream, _loss.error, _loss.lines = None, "", 0

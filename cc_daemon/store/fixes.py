@@ -12,7 +12,7 @@ else: casts, samples, events, sonar readings, and the SQL.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +66,33 @@ class FixJournal(BufferedWriter):
     ) -> None:
         """A telemetry fix (`P-T`) or a start-measuring frame (`P-M`), as received,
         with the autopilot's clock as decoded in byte order `ap_time_order`."""
+        self._record_fix(msg, ap_time_s, ap_time_order, 0)
+
+    def record_fixes(
+        self,
+        msgs: Sequence[Telemetry],
+        *,
+        decode: Callable[[int], int] | None = None,
+        ap_time_order: str | None = None,
+    ) -> None:
+        """Fixes read together (a run of `P-T` in one read), in order: `record_fix`
+        for each, their autopilot times decoded by `decode`. Thinned, they share one
+        instant, of which only the latest fix is kept: the others are counted as
+        thinned at once, without a row ever made for them (a flood's hot path)."""
+        unthinned = self._thinner is None
+        for msg in msgs if unthinned else msgs[-1:]:
+            ap_time_s = None if decode is None else decode(msg.timestamp_s)
+            self._record_fix(msg, ap_time_s, ap_time_order, 0 if unthinned else len(msgs) - 1)
+
+    def _record_fix(
+        self,
+        msg: Telemetry | StartMeasuring,
+        ap_time_s: int | None,
+        ap_time_order: str | None,
+        replaced: int,
+    ) -> None:
+        """`replaced`: fixes of the same instant before `msg`, which its row replaces
+        (a thinned journal only: `record_fixes` passes none to an unthinned one)."""
         try:
             mono = self._monotonic()
             ts, lon, lat, alt, sonar, confidence, *mode = msg  # mode: the 26-byte M's
@@ -91,7 +118,7 @@ class FixJournal(BufferedWriter):
                 return
             with self._lock:
                 first = not thinner.holding  # the writer may sleep with no deadline
-                ready = thinner.offer(row, mono)
+                ready = thinner.offer(row, mono, replaced)
                 thinned = thinner.report(mono)
             if ready is not None:
                 self._append(ready)
