@@ -31,6 +31,7 @@ _NEVER = {
     "gpiozero with the simulated winch": ("gpiozero", "cc_daemon.drivers.winch.gpio"),
     "rich and pygments with a JSON log": ("rich", "pygments"),
     "ssl (the daemon opens no TLS connection)": ("ssl", "_ssl"),
+    "pydantic's plugin search": ("pydantic.plugin._loader", "importlib.metadata"),
 }
 
 
@@ -95,6 +96,35 @@ def test_the_first_pass_reads_the_daemon_and_each_command_gets_its_own_options()
     assert survey.simulate and survey.stations == 2 and survey.winch == "gpio-mock"
     _, export = parse_command_line(["--config", "x.toml", "export", "--format", "csv"])
     assert export.command == "export" and export.format == "csv"
+
+
+def test_models_built_without_plugins_leave_pydantic_its_own_loader_after():
+    # A fresh interpreter: the daemon's configuration built with no plugin search;
+    # a model built afterwards (anyone's) asks pydantic's real loader again.
+    code = (
+        "import sys\n"
+        "from cc_daemon.ground.leanimports import pydantic_without_plugins\n"
+        "with pydantic_without_plugins():\n"
+        "    from cc_daemon.config import Settings\n"
+        "    Settings()\n"
+        "assert 'importlib.metadata' not in sys.modules, 'searched for plugins'\n"
+        "assert 'pydantic.plugin._loader' not in sys.modules, 'the stand-in stayed'\n"
+        "import pydantic\n"
+        "class Later(pydantic.BaseModel):\n"
+        "    x: int = 1\n"
+        "import pydantic.plugin._loader as loader\n"
+        "assert hasattr(loader, 'entry_points'), 'not the real loader'\n"
+        "assert Later(x=2).x == 2 and Settings().winch.backend == 'sim'\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=60,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
+    assert done.returncode == 0, done.stderr
 
 
 def test_the_lean_imports_hide_nothing_afterwards():

@@ -268,18 +268,22 @@ def _configure_daemon_logging(settings: Any) -> None:
 
 
 def _run_daemon(args: argparse.Namespace, held: SignalHold) -> int:
-    from cc_daemon.ground.leanimports import import_daemon_libraries_lean
+    from cc_daemon.ground.leanimports import (
+        import_daemon_libraries_lean,
+        pydantic_without_plugins,
+    )
 
     import_daemon_libraries_lean()  # before anything imports asyncio or structlog
     import asyncio
 
-    from cc_daemon.daemon.preflight import check_paths, open_journal
-    from cc_daemon.daemon.reload import Reloader
-    from cc_daemon.daemon.service import Daemon
-    from cc_daemon.daemon.signals import stopped_before_ready
-    from cc_daemon.daemon.simgate import check_backend_allowed
-    from cc_daemon.daemon.simulators import Simulators
-    from cc_daemon.drivers.winch.factory import check_pin_library
+    with pydantic_without_plugins():  # the configuration's models are built here
+        from cc_daemon.daemon.preflight import check_paths, open_journal
+        from cc_daemon.daemon.reload import Reloader
+        from cc_daemon.daemon.service import Daemon
+        from cc_daemon.daemon.signals import stopped_before_ready
+        from cc_daemon.daemon.simgate import check_backend_allowed
+        from cc_daemon.daemon.simulators import Simulators
+        from cc_daemon.drivers.winch.factory import check_pin_library
 
     simulators = Simulators(sonde=_simulated_sonde, drum=_simulated_drum)
 
