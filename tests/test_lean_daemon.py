@@ -32,6 +32,7 @@ _NEVER = {
     "rich and pygments with a JSON log": ("rich", "pygments"),
     "ssl (the daemon opens no TLS connection)": ("ssl", "_ssl"),
     "pydantic's plugin search": ("pydantic.plugin._loader", "importlib.metadata"),
+    "the journal's read side": ("cc_daemon.store.reader",),
 }
 
 
