@@ -333,14 +333,14 @@ class Daemon(CastRunner):
             await asyncio.sleep(1.0)
 
     async def _serve_status(self) -> None:
-        from cc_daemon.daemon.status_report import status_document
         from cc_daemon.daemon.status_server import serve_status
 
-        await serve_status(
-            self.settings.status,
-            lambda: status_document(self.status_inputs()),
-            journal=self.settings.store.path,
-        )
+        def document() -> dict[str, Any]:  # the report's module: at the first client
+            from cc_daemon.daemon.status_report import status_document
+
+            return status_document(self.status_inputs())
+
+        await serve_status(self.settings.status, document, journal=self.settings.store.path)
 
     def status_inputs(self) -> StatusInputs:
         """What the status document is made of, as plain values taken now."""
