@@ -33,6 +33,7 @@ _NEVER = {
     "ssl (the daemon opens no TLS connection)": ("ssl", "_ssl"),
     "pydantic's plugin search": ("pydantic.plugin._loader", "importlib.metadata"),
     "the journal's read side": ("cc_daemon.store.reader",),
+    "the sonde's modules with no sonde": ("cc_daemon.drivers.sonde",),
 }
 
 
