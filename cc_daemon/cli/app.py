@@ -278,7 +278,6 @@ def _run_daemon(args: argparse.Namespace, held: SignalHold) -> int:
 
     with pydantic_without_plugins():  # the configuration's models are built here
         from cc_daemon.daemon.preflight import check_paths, open_journal
-        from cc_daemon.daemon.reload import Reloader
         from cc_daemon.daemon.service import Daemon
         from cc_daemon.daemon.signals import stopped_before_ready
         from cc_daemon.daemon.simgate import check_backend_allowed
@@ -297,8 +296,13 @@ def _run_daemon(args: argparse.Namespace, held: SignalHold) -> int:
     if held.stop_requested():  # nothing opened yet, the probe never moved
         return stopped_before_ready(held)
     daemon = Daemon(settings, journal=open_journal(settings), simulators=simulators)
-    reloader = Reloader(daemon, lambda: _load(args), _configure_daemon_logging)
-    return asyncio.run(_serve(daemon, held, reloader))
+
+    def reload() -> None:  # a SIGHUP: the reload's module is imported at the first
+        from cc_daemon.daemon.reload import Reloader
+
+        Reloader(daemon, lambda: _load(args), _configure_daemon_logging)()
+
+    return asyncio.run(_serve(daemon, held, reload))
 
 
 # The simulated devices, imported from the simulator only when a backend set to one
