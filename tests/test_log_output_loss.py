@@ -8,7 +8,12 @@ import os
 
 import structlog
 
-from cc_daemon.ground.logsetup import configure_logging, output_loss
+from cc_daemon.ground.logsetup import (
+    add_pending_listener,
+    configure_logging,
+    output_loss,
+    remove_pending_listener,
+)
 
 
 class DeadTerminal(io.StringIO):
@@ -30,9 +35,16 @@ def test_eio_on_the_log_stream_is_counted_not_raised() -> None:
     configure_logging("json", "info", stream)
     log = structlog.get_logger("test")
     assert output_loss() is None
-    log.error("first")
-    log.info("second")
-    log.warning("third")
+    told: list[int] = []
+    listener = lambda: told.append(1)  # noqa: E731
+    add_pending_listener(listener)  # the daemon's housekeeping, asleep
+    try:
+        log.error("first")
+        log.info("second")
+        log.warning("third")
+    finally:
+        remove_pending_listener(listener)
+    assert told == [1]  # woken once, for the loss: the lines after it are no news
     loss = output_loss()
     assert loss is not None
     assert loss.lines == 3

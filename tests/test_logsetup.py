@@ -15,8 +15,12 @@ import structlog
 
 from cc_daemon.ground.logsetup import (
     RateLimiter,
+    add_pending_listener,
     configure_logging,
     flush_rate_limited,
+    logs_at,
+    rate_limited_due_in,
+    remove_pending_listener,
     reset_logging,
     resolve_format,
 )
@@ -169,6 +173,14 @@ def test_debug_is_logged_at_debug(clock: FakeClock) -> None:
     assert (line["event"], line["level"], line["type"]) == ("frame in", "debug", "S")
 
 
+def test_a_caller_can_ask_before_building_costly_fields(clock: FakeClock) -> None:
+    assert logs_at(logging.DEBUG)  # not configured here: structlog's own setup decides
+    json_logging(clock, "info")
+    assert not logs_at(logging.DEBUG) and logs_at(logging.INFO)
+    json_logging(clock, "debug")  # a reload to debug
+    assert logs_at(logging.DEBUG)
+
+
 def test_stdlib_logging_goes_through_the_same_chain_and_level(clock: FakeClock) -> None:
     stream = json_logging(clock, "info")
     other = logging.getLogger("serial.tools")
@@ -300,6 +312,34 @@ def test_flush_reports_a_burst_that_stopped(clock: FakeClock) -> None:
     assert summary["logger"] == "cc_daemon.winch"
     assert summary["depth_m"] == 3.2
     assert summary["repeated"] == 3
+
+
+def test_a_held_count_says_when_it_is_due_and_tells_the_listeners_once(
+    clock: FakeClock,
+) -> None:
+    json_logging(clock)
+    told: list[int] = []
+    listener = lambda: told.append(1)  # noqa: E731
+    add_pending_listener(listener)
+    try:
+        log = structlog.get_logger("cc_daemon.link")
+        assert rate_limited_due_in() is None  # nothing held: nothing to wake for
+        log.warning("port busy")
+        assert (told, rate_limited_due_in()) == ([], None)  # logged, not held
+        clock.now += 2.0
+        log.warning("port busy")  # the first repeat held back: news
+        log.warning("port busy")  # a second: the same count, no news
+        assert told == [1]
+        assert rate_limited_due_in() == pytest.approx(8.0)  # the window's end
+        clock.now += 8.0
+        assert rate_limited_due_in() == 0.0
+        assert flush_rate_limited() == 1
+        assert rate_limited_due_in() is None
+    finally:
+        remove_pending_listener(listener)
+    log.warning("port busy")
+    log.warning("port busy")
+    assert told == [1]  # removed: told no more
 
 
 def test_flush_everything_at_exit(clock: FakeClock) -> None:

@@ -70,7 +70,7 @@ async def test_the_daemon_says_it_in_the_systemd_status_until_a_frame_arrives(
             {"serial": {"port": str(pty.path)}, "store": {"path": str(tmp_path / "j.db")}}
         )
         daemon = Daemon(settings, notifier=SystemdNotifier(str(sock_path)))
-        daemon._quiet = QuietPort(first_s=0.3, max_s=0.3)
+        daemon._housekeeping._quiet = QuietPort(first_s=0.3, max_s=0.3)
         task = asyncio.create_task(daemon.run())
         try:
             await asyncio.wait_for(daemon.ready.wait(), 5)

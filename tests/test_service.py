@@ -17,7 +17,16 @@ import structlog
 
 from cc_daemon.config import Settings
 from cc_daemon.core.cast.machine import CastMachine
-from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished, ProbePositionRequest
+from cc_daemon.core.protocol import (
+    Ack,
+    DepthReport,
+    FaultReport,
+    Finished,
+    ProbePosition,
+    ProbePositionRequest,
+    Telemetry,
+    encode,
+)
 from cc_daemon.core.winch.physics import LinePhysics
 from cc_daemon.daemon.casting import EXIT_ROWS_LOST
 from cc_daemon.daemon.service import EXIT_OK, EXIT_PROBE_MAY_BE_DOWN, Daemon
@@ -181,7 +190,7 @@ async def test_a_crashing_background_task_does_not_touch_the_cast(
     def crash(**_: Any) -> int:
         raise RuntimeError("housekeeping bug")
 
-    monkeypatch.setattr("cc_daemon.daemon.service.flush_rate_limited", crash)
+    monkeypatch.setattr("cc_daemon.daemon.housekeeping.flush_rate_limited", crash)
     with PtyPair(tmp_path / "tty") as pty, structlog.testing.capture_logs() as logs:
         daemon = Daemon(_settings(tmp_path, pty.path))
         port = await FramePort.over_fd(pty.master_fd)
@@ -359,3 +368,35 @@ async def test_rows_the_journal_could_put_nowhere_make_a_non_zero_exit(
         pty.close()
     assert journal.health().dropped_rows >= 2  # daemon_started, daemon_stopped
     assert "the journal lost rows during this run" in capsys.readouterr().out
+
+
+async def test_a_burst_of_fixes_is_heard_whole_and_the_last_is_the_fix(
+    rig: tuple[Daemon, FramePort],
+) -> None:
+    daemon, port = rig
+    fixes = [Telemetry(n, -37260579, 404506308 + n, 702385, 8219, 100) for n in range(40)]
+    burst = b"".join(map(encode, fixes[:30])) + encode(ProbePositionRequest(30))
+    burst += b"".join(map(encode, fixes[30:]))
+    task = asyncio.create_task(daemon.run())
+    await asyncio.wait_for(daemon.ready.wait(), 5)
+    await port.send(burst)  # one write: read in one or a few chunks, runs of T around the S
+    got = await port.receive(2)
+    assert got is not None and isinstance(got.message, ProbePosition)
+    assert got.message.timestamp_s == 30  # the S's own time, whatever came before it
+    for _ in range(100):  # the T after the S: read by now, or a moment later
+        if daemon.frames_in == 41:
+            break
+        await asyncio.sleep(0.02)
+    status = daemon.snapshot()
+    daemon.request_shutdown()
+    assert await asyncio.wait_for(task, 5) == EXIT_OK
+    assert status.frames_in == 41 and status.corrupt_frames == 0
+    assert status.last_fix is not None and status.last_fix.message == fixes[-1]
+    with sqlite3.connect(daemon.settings.store.path or "") as db:
+        kept = db.execute("SELECT ap_timestamp_s FROM fixes").fetchall()
+        dropped = db.execute(
+            "SELECT sum(json_extract(detail_json, '$.dropped')) FROM events"
+            " WHERE kind = 'telemetry_thinned'"
+        ).fetchone()[0]
+    assert (39,) in kept  # the latest, kept at the end; every other one kept or counted
+    assert len(kept) + (dropped or 0) == 40

@@ -111,3 +111,44 @@ def test_the_rate_changes_on_reload(tmp_path: Path) -> None:
     finally:
         journal.close()
     assert query(db, "SELECT count(*) FROM fixes") == [(5,)]
+
+
+def test_fixes_read_together_are_one_instant_the_last_kept(tmp_path: Path) -> None:
+    # A flood's path (the daemon hands each run of P-T read at once as one):
+    # as if each had been recorded at that instant, and no row made for the others.
+    thinner = FixThinner(2.0)
+    assert thinner.offer(("fix", 0), 100.0) is None
+    assert thinner.offer(("fix", 9), 100.1, replaced=8) is None  # 1..8 never offered
+    assert thinner.thinned == 9  # 0 replaced by 9, and the 8 before it
+    assert thinner.offer(("fix", 10), 100.6, replaced=0) == ("fix", 9)
+
+    clock = FakeClock()
+    db = tmp_path / "j.db"
+    journal = Journal(db, monotonic=clock.monotonic, wall=clock.wall, telemetry_rate_hz=2.0)
+    journal.open()
+    try:
+        for run in range(4):  # four reads half a second apart, 50 fixes each
+            fixes = [FIX._replace(timestamp_s=run * 50 + n) for n in range(50)]
+            journal.record_fixes(fixes, decode=lambda raw: raw + 1000, ap_time_order="big")
+            clock.advance(0.5)
+    finally:
+        journal.close()
+    rows = query(db, "SELECT ap_timestamp_s, ap_time_s FROM fixes ORDER BY id")
+    assert rows == [(49, 1049), (99, 1099), (149, 1149), (199, 1199)]  # each read's last
+    dropped = query(db, "SELECT detail_json FROM events WHERE kind = 'telemetry_thinned'")
+    assert sum(json.loads(d)["dropped"] for (d,) in dropped) == 4 * 49  # none lost silently
+
+
+def test_fixes_read_together_unthinned_are_all_kept(tmp_path: Path) -> None:
+    db = tmp_path / "j.db"
+    journal = Journal(db)  # a library's journal: no rate, every fix kept
+    journal.open()
+    try:
+        journal.record_fixes([FIX._replace(timestamp_s=n) for n in range(3)], decode=lambda r: -r)
+    finally:
+        journal.close()
+    assert query(db, "SELECT ap_timestamp_s, ap_time_s FROM fixes ORDER BY id") == [
+        (0, 0),
+        (1, -1),
+        (2, -2),
+    ]

@@ -268,18 +268,21 @@ def _configure_daemon_logging(settings: Any) -> None:
 
 
 def _run_daemon(args: argparse.Namespace, held: SignalHold) -> int:
-    from cc_daemon.ground.leanimports import import_daemon_libraries_lean
+    from cc_daemon.ground.leanimports import (
+        import_daemon_libraries_lean,
+        pydantic_without_plugins,
+    )
 
     import_daemon_libraries_lean()  # before anything imports asyncio or structlog
     import asyncio
 
-    from cc_daemon.daemon.preflight import check_paths, open_journal
-    from cc_daemon.daemon.reload import Reloader
-    from cc_daemon.daemon.service import Daemon
-    from cc_daemon.daemon.signals import stopped_before_ready
-    from cc_daemon.daemon.simgate import check_backend_allowed
-    from cc_daemon.daemon.simulators import Simulators
-    from cc_daemon.drivers.winch.factory import check_pin_library
+    with pydantic_without_plugins():  # the configuration's models are built here
+        from cc_daemon.daemon.preflight import check_paths, open_journal
+        from cc_daemon.daemon.service import Daemon
+        from cc_daemon.daemon.signals import stopped_before_ready
+        from cc_daemon.daemon.simgate import check_backend_allowed
+        from cc_daemon.daemon.simulators import Simulators
+        from cc_daemon.drivers.winch.factory import check_pin_library
 
     simulators = Simulators(sonde=_simulated_sonde, drum=_simulated_drum)
 
@@ -293,8 +296,13 @@ def _run_daemon(args: argparse.Namespace, held: SignalHold) -> int:
     if held.stop_requested():  # nothing opened yet, the probe never moved
         return stopped_before_ready(held)
     daemon = Daemon(settings, journal=open_journal(settings), simulators=simulators)
-    reloader = Reloader(daemon, lambda: _load(args), _configure_daemon_logging)
-    return asyncio.run(_serve(daemon, held, reloader))
+
+    def reload() -> None:  # a SIGHUP: the reload's module is imported at the first
+        from cc_daemon.daemon.reload import Reloader
+
+        Reloader(daemon, lambda: _load(args), _configure_daemon_logging)()
+
+    return asyncio.run(_serve(daemon, held, reload))
 
 
 # The simulated devices, imported from the simulator only when a backend set to one

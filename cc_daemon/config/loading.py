@@ -261,10 +261,16 @@ def _merge(layers: Sequence[Sequence[_Leaf]]) -> tuple[dict[str, Any], dict[_Key
                 if not isinstance(child, dict):
                     child = node[part] = {}
                 node = child
+            replaced = node.get(key[-1])
             node[key[-1]] = value
-            # Whatever a lower layer set at or below this key is gone now.
-            for stale in [k for k in origins if k[: len(key)] == key or key[: len(k)] == k]:
-                del origins[stale]
+            # Whatever a lower layer set at or below this key is gone now: a leaf
+            # where a table now is, or the leaves of a table this replaces (looked
+            # for only then: every leaf against every origin was quadratic).
+            for depth in range(1, len(key)):
+                origins.pop(key[:depth], None)
+            if isinstance(replaced, dict) and replaced:
+                for stale in [k for k in origins if k[: len(key)] == key]:
+                    del origins[stale]
             origins[key] = origin
     return merged, origins
 

@@ -5,8 +5,6 @@ Shared by every section's model (`schema`, and the sections that live beside the
 code they configure, such as `cc_daemon.config.sonde`). Pure: no I/O.
 """
 
-from __future__ import annotations
-
 import os
 from typing import Annotated, Any, Literal, NamedTuple
 

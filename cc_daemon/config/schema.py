@@ -5,12 +5,10 @@ the combinations that cannot work together, and the frozen `Settings` they make.
 only `loading.load_settings` looks at files and the environment.
 """
 
-from __future__ import annotations
-
 import math
 import re
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Self
 
 from pydantic import (
     AfterValidator,
@@ -65,7 +63,7 @@ class SerialSettings(BaseModel):
     jog_hold_s: Annotated[float, Field(ge=0.5, le=10.0)] = 2.5
 
     @model_validator(mode="after")
-    def _check(self) -> SerialSettings:
+    def _check(self) -> Self:
         if self.reconnect_max_s < self.reconnect_initial_s:
             raise _impossible(
                 "{0} must be at least {1} (the reopen delay grows from the first to the second)",
@@ -170,7 +168,7 @@ class WinchGpioSettings(BaseModel):
         return used
 
     @model_validator(mode="after")
-    def _check(self) -> WinchGpioSettings:
+    def _check(self) -> Self:
         # A pull resistor fixes which level is "open": a switch can only pull the other way.
         if (self.switch_pull, self.switch_active) in (("up", "high"), ("down", "low")):
             raise _impossible(
@@ -307,7 +305,7 @@ class WinchSettings(BaseModel):
     gpio: WinchGpioSettings = WinchGpioSettings()
 
     @model_validator(mode="after")
-    def _check(self) -> WinchSettings:
+    def _check(self) -> Self:
         if self.sim.stall_at_m is not None and self.sim.stall_at_m >= self.max_line_m:
             raise _impossible(
                 "{0} must be less than {1} (the line ends before the stall)",
@@ -345,7 +343,7 @@ class CastSettings(BaseModel):
     blind_max_depth_m: Annotated[float, Field(gt=0, le=10.0)] = 1.0
 
     @model_validator(mode="after")
-    def _check(self) -> CastSettings:
+    def _check(self) -> Self:
         if self.min_depth_m > self.target_depth_m:
             raise _impossible(
                 "{0} must not be deeper than {1} (every cast would be skipped)",
@@ -478,7 +476,7 @@ class SonarSettings(BaseModel):
     journal_rate_hz: Annotated[float, Field(ge=0.1, le=50.0)] = 4.0
 
     @model_validator(mode="after")
-    def _check(self) -> SonarSettings:
+    def _check(self) -> Self:
         if self.reconnect_max_s < self.reconnect_initial_s:
             raise _impossible(
                 "{0} must be at least {1} (the reopen delay grows from the first to the second)",
@@ -539,7 +537,7 @@ class Settings(BaseModel):
         return naming.key_value_source(key, self._merged, self._origins, type(self)())
 
     @model_validator(mode="after")
-    def _check(self) -> Settings:
+    def _check(self) -> Self:
         if self.cast.target_depth_m > self.winch.max_line_m:
             raise _impossible(
                 "{0} must not be deeper than {1} (the probe cannot go below the line's end)",

@@ -9,9 +9,7 @@ It must never open a port or import pymodbus: validating a configuration
 touches no device.
 """
 
-from __future__ import annotations
-
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Self
 
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 from pydantic_core import PydanticCustomError
@@ -95,7 +93,7 @@ class SondeParameter(BaseModel):
     standard_name: Annotated[str | None, BeforeValidator(lambda v: None if v == "" else v)] = None
 
     @model_validator(mode="after")
-    def _one_place(self) -> SondeParameter:
+    def _one_place(self) -> Self:
         if (self.modicon is None) == (self.protocol_address is None):
             raise _impossible(
                 "give exactly one of {0} (Modicon number, 40001 to 49999) or {1} "
@@ -179,7 +177,7 @@ class SondeSettings(BaseModel):
     parameters: Annotated[tuple[SondeParameter, ...], Field(strict=False)] = DEFAULT_PARAMETERS
 
     @model_validator(mode="after")
-    def _check(self) -> SondeSettings:
+    def _check(self) -> Self:
         if self.reconnect_max_s < self.reconnect_initial_s:
             raise _impossible(
                 "{0} must be at least {1} (the reopen delay grows from the first to the second)",

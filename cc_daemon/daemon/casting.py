@@ -3,8 +3,8 @@ and the journal, and the helpers every part of the daemon uses to reach those th
 
 `CastRunner` is the base of `service.Daemon`: the Daemon routes the autopilot's
 messages and owns the lifecycle; this owns what happens between a cast's `R-O`
-and its `R-F` (or its stranding). The state it uses is declared below and set up
-by the Daemon's constructor.
+and its `R-F` (or its stranding), a shutdown's bringing the probe home included.
+The state it uses is declared below and set up by the Daemon's constructor.
 
 Guarantees kept here:
 - `R-F` is sent only from a `SendFinished` the machine produced from a status
@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import Iterator
+from logging import DEBUG
 from typing import Any
 
 import structlog
@@ -46,9 +47,11 @@ from cc_daemon.core.protocol.messages import CcMessage, DepthReport, FaultReport
 from cc_daemon.core.winch.status import ApproachSpeed, Winch, WinchStatus, verified_home
 from cc_daemon.daemon.line_watch import LineWatch
 from cc_daemon.daemon.sonde import SondeDuty
+from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.drivers.link import SerialLink
 from cc_daemon.drivers.winch.factory import hand_move
 from cc_daemon.ground.clock import Clock
+from cc_daemon.ground.logsetup import logs_at
 from cc_daemon.store import Journal
 from cc_daemon.store.interrupted import InterruptedCast
 
@@ -58,6 +61,7 @@ EXIT_OK = 0
 EXIT_PROBE_MAY_BE_DOWN = 130
 # The journal dropped rows (no file and no spill file could take them): say so.
 EXIT_ROWS_LOST = 5
+SHUTDOWN_EXTEND_S = 30.0  # each EXTEND_TIMEOUT_USEC asks systemd for this much more
 
 
 class ActiveCast:
@@ -96,6 +100,7 @@ class CastRunner:
     _sonde: SondeDuty | None
     _last_depth_m: float
     _interrupted: list[InterruptedCast]
+    _notifier: SystemdNotifier
 
     def _winch_status(self) -> WinchStatus:
         """The winch's status; if the backend fails, a faulted status at the last depth."""
@@ -112,7 +117,8 @@ class CastRunner:
 
     def _send(self, message: CcMessage) -> bool:
         sent = self._write_again(encode(message))
-        _log.debug("frame out", sent=sent, **as_dict(message))
+        if logs_at(DEBUG):  # asked first: the fields cost more than the question
+            _log.debug("frame out", sent=sent, **as_dict(message))
         if isinstance(message, Finished):
             self._line.finished_sent(message, self._clock.monotonic())
         return sent
@@ -333,6 +339,40 @@ class CastRunner:
             self._journal_event(
                 "fault_reported", cast_id=cast.cast_id, depth_m=round(depth_m, 3), fault=fault
             )
+
+    async def _finish_running_cast(self) -> None:
+        """Bring a running cast home; give up only on a probe that cannot come home."""
+        cast = self._cast
+        if cast is None or cast.task is None:
+            return
+        if self._exit_code == EXIT_OK and not cast.settled.is_set():
+            _log.info("shutdown: bringing the probe home before exiting", cast_id=cast.cast_id)
+            self._execute(cast, cast.machine.abort(self._clock.monotonic(), "shutdown"))
+        settled = asyncio.ensure_future(cast.settled.wait())
+        try:
+            while not (cast.task.done() or settled.done()):
+                # Keep systemd from escalating to SIGKILL while the probe comes up.
+                self._notifier.notify(
+                    f"EXTEND_TIMEOUT_USEC={int(SHUTDOWN_EXTEND_S * 1e6)}",
+                    f"STATUS=stopping: bringing the probe home from {self._probe_depth():.1f} m",
+                )
+                await asyncio.wait(
+                    {cast.task, settled},
+                    timeout=SHUTDOWN_EXTEND_S / 3,
+                    return_when=asyncio.FIRST_COMPLETED,
+                )
+        finally:
+            settled.cancel()
+        if not cast.task.done():
+            # Stranded or failed: waiting longer cannot bring the probe home.
+            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
+            _log.critical(
+                "exiting with the probe NOT home: the winch is stopped; recover it by hand",
+                cast_id=cast.cast_id,
+                depth_m=round(self._probe_depth(), 3),
+            )
+            cast.task.cancel()
+        await asyncio.wait({cast.task})  # a cancellation of run() itself still propagates
 
     def _check_home_at_exit(self) -> None:
         """Exit 0 means the probe is home: a winch that cannot verify it says so."""

@@ -13,7 +13,7 @@ reply to a stick frame.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import structlog
 
@@ -94,6 +94,14 @@ class LineWatch:
                 )
                 self._event("timestamp_order", order=decision.order, votes=decision.votes)
         return self.order.decode(message.timestamp_s)
+
+    def heard_fixes(self, fixes: Sequence[Telemetry], now: float) -> int:
+        """A run of `T` frames read together: as `heard` for each at `now`; returns the
+        time of the last. At one instant only the first can vote on the byte order
+        (the others pair with it 0 s apart) and the last is the one remembered, so
+        those two are heard; the others cannot change anything."""
+        time = self.heard(fixes[0], now)
+        return self.heard(fixes[-1], now) if len(fixes) > 1 else time
 
     def corrupt(self, now: float) -> None:
         self.lost.corrupt(now)

@@ -43,6 +43,10 @@ class QuietPort:
     def corrupt(self) -> None:
         self._corrupt += 1
 
+    def next_due(self) -> float | None:
+        """When `due` next has something to say (None: a frame was read, or no port)."""
+        return None if self._opened_at is None else self._due
+
     def due(self, now: float, port: str) -> str | None:
         """What to say at `now`, if anything."""
         if self._opened_at is None or now < self._due:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import gc
 from collections.abc import Awaitable, Callable
+from logging import DEBUG
 from typing import TYPE_CHECKING, Any
 
 import structlog
@@ -58,9 +59,9 @@ from cc_daemon.daemon.casting import (
     ActiveCast,
     CastRunner,
 )
+from cc_daemon.daemon.housekeeping import Housekeeping
 from cc_daemon.daemon.line_watch import LineWatch, watch_line
 from cc_daemon.daemon.preflight import make_journal
-from cc_daemon.daemon.quiet_port import QuietPort
 from cc_daemon.daemon.restart import note_interrupted
 from cc_daemon.daemon.simgate import simulation_warning
 from cc_daemon.daemon.simulators import NO_SIMULATORS, Simulators
@@ -69,7 +70,7 @@ from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.drivers.link import SerialLink
 from cc_daemon.drivers.winch.factory import hand_move, make_winch, prepare_winch
 from cc_daemon.ground.clock import Clock, SystemClock
-from cc_daemon.ground.logsetup import flush_rate_limited, output_loss
+from cc_daemon.ground.logsetup import flush_rate_limited, logs_at
 from cc_daemon.store import Journal
 from cc_daemon.store.interrupted import InterruptedCast
 
@@ -78,10 +79,6 @@ if TYPE_CHECKING:
     from cc_daemon.daemon.status_report import StatusInputs
 
 _log = structlog.get_logger("cc_daemon.service")
-
-HOUSEKEEPING_TICK_S = 1.0
-SHUTDOWN_EXTEND_S = 30.0  # each EXTEND_TIMEOUT_USEC asks systemd for this much more
-CORRUPT_SUMMARY_EVERY = 10  # ticks
 
 
 class Daemon(CastRunner):
@@ -154,11 +151,15 @@ class Daemon(CastRunner):
         self.casts_aborted = 0
         self.casts_skipped = 0
         self.port_losses = 0
-        self._corrupt_reported = 0
         self._last_depth_m = 0.0
-        self._output_loss_reported = False
         self._sonde: SondeDuty | None = None
-        self._quiet = QuietPort()
+        self._housekeeping = Housekeeping(
+            clock=self._clock,
+            notifier=self._notifier,
+            port=lambda: self.link.port,
+            corrupt_frames=lambda: self._parser.stats.errors,
+            journal_event=self._journal_event,
+        )
         self._interrupted: list[InterruptedCast] = []  # stations a killed run left held
 
     # ------------------------------------------------------------ lifecycle
@@ -203,7 +204,8 @@ class Daemon(CastRunner):
                     self._keep_running("serial-link", self.link.run), name="serial-link"
                 )
                 housekeeping = tasks.create_task(
-                    self._keep_running("housekeeping", self._housekeeping), name="housekeeping"
+                    self._keep_running("housekeeping", self._housekeeping.run),
+                    name="housekeeping",
                 )
                 status = tasks.create_task(
                     self._keep_running("status", self._serve_status), name="status"
@@ -285,40 +287,6 @@ class Daemon(CastRunner):
         """A journal event from outside the hub (a reload refused, say); never raises."""
         self._journal_event(kind, **detail)
 
-    async def _finish_running_cast(self) -> None:
-        """Bring a running cast home; give up only on a probe that cannot come home."""
-        cast = self._cast
-        if cast is None or cast.task is None:
-            return
-        if self._exit_code == EXIT_OK and not cast.settled.is_set():
-            _log.info("shutdown: bringing the probe home before exiting", cast_id=cast.cast_id)
-            self._execute(cast, cast.machine.abort(self._clock.monotonic(), "shutdown"))
-        settled = asyncio.ensure_future(cast.settled.wait())
-        try:
-            while not (cast.task.done() or settled.done()):
-                # Keep systemd from escalating to SIGKILL while the probe comes up.
-                self._notifier.notify(
-                    f"EXTEND_TIMEOUT_USEC={int(SHUTDOWN_EXTEND_S * 1e6)}",
-                    f"STATUS=stopping: bringing the probe home from {self._probe_depth():.1f} m",
-                )
-                await asyncio.wait(
-                    {cast.task, settled},
-                    timeout=SHUTDOWN_EXTEND_S / 3,
-                    return_when=asyncio.FIRST_COMPLETED,
-                )
-        finally:
-            settled.cancel()
-        if not cast.task.done():
-            # Stranded or failed: waiting longer cannot bring the probe home.
-            self._exit_code = EXIT_PROBE_MAY_BE_DOWN
-            _log.critical(
-                "exiting with the probe NOT home: the winch is stopped; recover it by hand",
-                cast_id=cast.cast_id,
-                depth_m=round(self._probe_depth(), 3),
-            )
-            cast.task.cancel()
-        await asyncio.wait({cast.task})  # a cancellation of run() itself still propagates
-
     async def _close(self) -> None:
         """Stop the motor, close the journal; each step guarded so one failing
         cannot skip the next (the winch first: it is the one that matters)."""
@@ -365,14 +333,14 @@ class Daemon(CastRunner):
             await asyncio.sleep(1.0)
 
     async def _serve_status(self) -> None:
-        from cc_daemon.daemon.status_report import status_document
         from cc_daemon.daemon.status_server import serve_status
 
-        await serve_status(
-            self.settings.status,
-            lambda: status_document(self.status_inputs()),
-            journal=self.settings.store.path,
-        )
+        def document() -> dict[str, Any]:  # the report's module: at the first client
+            from cc_daemon.daemon.status_report import status_document
+
+            return status_document(self.status_inputs())
+
+        await serve_status(self.settings.status, document, journal=self.settings.store.path)
 
     def status_inputs(self) -> StatusInputs:
         """What the status document is made of, as plain values taken now."""
@@ -391,40 +359,8 @@ class Daemon(CastRunner):
             uptime_s=now - self._started_at,
         )
 
-    async def _housekeeping(self) -> None:
-        """Each second: rate-limited log summaries and the systemd watchdog; every
-        10 s the corrupt-frame count (journal and log)."""
-        tick = 0
-        while True:
-            await asyncio.sleep(HOUSEKEEPING_TICK_S)
-            flush_rate_limited()
-            self._notifier.watchdog()  # every second: fine for any WatchdogSec >= 2
-            self._report_output_loss()
-            quiet = self._quiet.due(self._clock.monotonic(), self.link.port)
-            if quiet is not None:
-                _log.warning(quiet, port=self.link.port)
-                self._notifier.notify(f"STATUS={quiet}")
-            tick += 1
-            if tick % CORRUPT_SUMMARY_EVERY:
-                continue
-            corrupt = self._parser.stats.errors
-            if corrupt != self._corrupt_reported:
-                new = corrupt - self._corrupt_reported
-                self._corrupt_reported = corrupt
-                _log.warning("corrupt frames received", new=new, total=corrupt)
-                self._journal_event("corrupt_frames", new=new, total=corrupt)
-
     async def _watch_line(self) -> None:
         await watch_line(self._line, self._clock, lambda: self._cast is not None)
-
-    def _report_output_loss(self) -> None:
-        """A log stream gone for good (a closed terminal): say so where it can be seen."""
-        loss = output_loss()
-        if loss is None or self._output_loss_reported:
-            return
-        self._output_loss_reported = True
-        self._journal_event("log_output_lost", error=loss.error)
-        self._notifier.notify(f"STATUS=log output lost ({loss.error}); events go to the journal")
 
     def snapshot(self) -> DaemonStatus:
         cast = self._cast
@@ -460,48 +396,78 @@ class Daemon(CastRunner):
     def _on_link_state(self, up: bool, reason: str) -> None:
         self._line.link_changed(up, self._clock.monotonic())
         if up:
-            self._quiet.opened(self._clock.monotonic())
+            self._housekeeping.port_opened(self._clock.monotonic())
             kind = "port_regained" if self.port_losses else "port_opened"
             self._journal_event(kind, port=self.link.port)
             self._release_interrupted()  # a station the previous run left the boat at
             self.ready.set()
             self._notifier.notify(f"STATUS=answering on {self.link.port}")
         else:
-            self._quiet.closed()
+            self._housekeeping.port_closed()
             self.port_losses += 1
             self._journal_event("port_lost", port=self.link.port, reason=reason)
             self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
 
     def _on_data(self, data: bytes) -> None:
+        fixes: list[Telemetry] = []  # a run of P-T, heard as one (`_fixes`)
         for message in self._parser.events(data):  # in stream order, errors included
-            if isinstance(message, CorruptFrame):
-                self._line.corrupt(self._clock.monotonic())
-                self._quiet.corrupt()
+            if type(message) is Telemetry:
+                fixes.append(message)
                 continue
-            self._quiet.heard()
+            if fixes:
+                self._fixes(fixes)
+                fixes = []
+            if isinstance(message, CorruptFrame):
+                now = self._clock.monotonic()
+                self._line.corrupt(now)
+                self._housekeeping.corrupt(now)
+                continue
+            self._housekeeping.heard()
             self.frames_in += 1
             try:
                 self._handle(message)
             except Exception:
                 _log.exception("error handling frame", frame=message.frame)
+        if fixes:
+            self._fixes(fixes)
+
+    def _fixes(self, fixes: list[Telemetry]) -> None:
+        """`P-T` frames read together: one instant, so heard as one (a flood's path).
+        Each counts and is heard as if alone (`LineWatch.heard_fixes`); the last is the
+        fix, and the journal keeps no other (`record_fixes`: they share an interval)."""
+        self._housekeeping.heard()
+        self.frames_in += len(fixes)
+        last = fixes[-1]
+        try:
+            now = self._clock.monotonic()
+            if logs_at(DEBUG):  # the fields of a frame cost more than the question
+                for message in fixes:
+                    _log.debug("frame in", **as_dict(message))
+            self._time.observe(self._line.heard_fixes(fixes, now), now)
+            self.last_fix = Fix(last, now, self._clock.wall())
+            with self._journaling("record_fix") as journal:
+                if journal is not None:
+                    order = self._line.order
+                    journal.record_fixes(fixes, decode=order.decode, ap_time_order=order.order)
+        except Exception:
+            _log.exception("error handling frame", frame=last.frame)
 
     # ------------------------------------------------------------ messages
 
     def _handle(self, message: Message) -> None:
         now = self._clock.monotonic()
-        _log.debug("frame in", **as_dict(message))
+        if logs_at(DEBUG):
+            _log.debug("frame in", **as_dict(message))
         self._time.observe(self._line.heard(message, now), now)
         if isinstance(message, ProbePositionRequest):
             self._send(ProbePosition(self._time.at(now), self._depth_mm(self._probe_depth())))
-        elif isinstance(message, Telemetry):
-            self._remember_fix(message, now)
         elif isinstance(message, StartMeasuring):
             self._remember_fix(message, now)
             self._line.stop_jog(now, "start-measuring")  # then as ever: home first
             self._on_start_measuring(message, now)
         elif isinstance(message, ProbeUp | ProbeDown):
             self._on_stick(Stick.UP if isinstance(message, ProbeUp) else Stick.DOWN, now)
-        else:  # the parser listens to autopilot frames only
+        else:  # the parser listens to autopilot frames only (`_on_data` takes the T's)
             _log.warning("unexpected frame from the autopilot side", frame=message.frame)
 
     def _remember_fix(self, message: Telemetry | StartMeasuring, now: float) -> None:

@@ -31,16 +31,15 @@ import structlog
 from cc_daemon.config import Settings
 from cc_daemon.core.errors import ConfigError
 from cc_daemon.daemon.simulators import SondeSimulatorFactory
-from cc_daemon.drivers.sonde.depthcheck import (
-    BottomContact,
-    DepthAgreement,
-    DepthDisagreement,
-    DepthMonitor,
-)
 from cc_daemon.ground.clock import Clock
 from cc_daemon.store import Journal
 
-if TYPE_CHECKING:  # the reader (and pyserial) is imported only when a sonde is configured
+if TYPE_CHECKING:  # the sonde's modules (and pyserial) are imported only for a sonde
+    from cc_daemon.drivers.sonde.depthcheck import (
+        BottomContact,
+        DepthAgreement,
+        DepthDisagreement,
+    )
     from cc_daemon.drivers.sonde.reader import SondeReader, SondeReading
 
 _log = structlog.get_logger("cc_daemon.sonde")
@@ -99,6 +98,8 @@ class SondeDuty:
                 sonde = sonde.model_copy(update={"port": str(Path(self._tmp.name) / "ttySONDE")})
             reader = SondeReader(sonde, monotonic=clock.monotonic, wall=clock.wall)
         self.reader = reader
+        from cc_daemon.drivers.sonde.depthcheck import DepthMonitor
+
         self.monitor = DepthMonitor(
             disagreement_m=sonde.depth_disagreement_m,
             contact_s=sonde.bottom_contact_s,
@@ -257,6 +258,12 @@ class SondeDuty:
     def _depth_event(
         self, event: DepthDisagreement | DepthAgreement | BottomContact, cast_id: int | None
     ) -> None:
+        from cc_daemon.drivers.sonde.depthcheck import (
+            BottomContact,
+            DepthAgreement,
+            DepthDisagreement,
+        )
+
         match event:
             case DepthDisagreement(line_out_m=line, sonde_depth_m=depth):
                 _log.warning(

@@ -28,7 +28,6 @@ from typing import Any
 import structlog
 
 from cc_daemon.drivers import fdserial
-from cc_daemon.ground.portusers import port_users
 from cc_daemon.ground.waiting import WaitReport
 
 _log = structlog.get_logger("cc_daemon.link")
@@ -192,5 +191,7 @@ def _held_by(port: str, exc: Exception) -> str:
         errno.EAGAIN,
     ):
         return ""
+    from cc_daemon.ground.portusers import port_users  # only for a port held by another
+
     users = port_users(port)
     return f" (held by {', '.join(str(u) for u in users)})" if users else ""

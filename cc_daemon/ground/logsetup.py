@@ -8,7 +8,10 @@ into the same chain, and the rate limiting of repeated warnings and errors.
 It must never decide *what* is logged (callers do), write anywhere but the stream it
 is given, or drop an event without counting it: repeats are held back, counted and
 reported with ``repeated=N`` (by the next identical event after the window, or by
-`flush_rate_limited`), never silenced.
+`flush_rate_limited`), never silenced. Whoever flushes need not poll: it asks when
+the next count is due (`rate_limited_due_in`) and is called, from whatever thread
+logged, when there is something new to flush or report (`add_pending_listener`:
+a count held back where none was, a stream lost).
 
 Nor may logging ever raise into its caller: a stream that fails for good (the
 terminal of a closed SSH session: EIO; a pipe whose reader left: EPIPE; a closed
@@ -21,6 +24,7 @@ field.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import sys
@@ -37,9 +41,13 @@ __all__ = [
     "LEVELS",
     "OutputLoss",
     "RateLimiter",
+    "add_pending_listener",
     "configure_logging",
     "flush_rate_limited",
+    "logs_at",
     "output_loss",
+    "rate_limited_due_in",
+    "remove_pending_listener",
     "reset_logging",
     "resolve_format",
 ]
@@ -115,6 +123,9 @@ class RateLimiter:
         self._windows: dict[Hashable, _Window] = {}
         # gpiozero and pyserial threads log too.
         self._lock = threading.Lock()
+        # Called, outside the lock, when a window holds back its first repeat: a
+        # count is now due at the window's end (`due_in`).
+        self.on_hold: Callable[[], None] | None = None
 
     def __call__(self, logger: WrappedLogger, method_name: str, event_dict: EventDict) -> EventDict:
         if event_dict.pop(_SUMMARY, False):
@@ -130,13 +141,18 @@ class RateLimiter:
                 self._forget_expired(now)
                 self._windows[key] = _Window(now)
                 return event_dict
-            if now - window.started < self.window_s:
-                if window.suppressed == 0:
+            repeated = window.suppressed
+            dropped = now - window.started < self.window_s
+            if dropped:
+                if repeated == 0:
                     window.held = {k: v for k, v in event_dict.items() if k not in _VOLATILE}
                 window.suppressed += 1
-                raise structlog.DropEvent
-            repeated = window.suppressed
-            self._windows[key] = _Window(now)
+            else:
+                self._windows[key] = _Window(now)
+        if dropped:
+            if repeated == 0 and self.on_hold is not None:
+                self.on_hold()  # the first held back: a count is due at the window's end
+            raise structlog.DropEvent
         if repeated:
             event_dict["repeated"] = repeated
         return event_dict
@@ -157,6 +173,13 @@ class RateLimiter:
                     window.started, window.suppressed, window.held = now, 0, {}
             self._forget_expired(now)
         return summaries
+
+    def due_in(self) -> float | None:
+        """Seconds until the next count held back is due (0: now; None: none held)."""
+        with self._lock:
+            now = self._clock()
+            due = [w.started + self.window_s - now for w in self._windows.values() if w.suppressed]
+        return max(0.0, min(due)) if due else None
 
     def _forget_expired(self, now: float) -> None:
         # Bounded memory: a window with nothing held back that has passed carries no
@@ -216,8 +239,10 @@ def output_loss() -> OutputLoss | None:
 def _stream_failed(stream: TextIO, exc: BaseException) -> None:
     """Point the failed stream at /dev/null so nothing writing to it, not even the
     interpreter's last flush at exit, fails again; count the line."""
+    first = False
     with _loss.lock:
         if _loss.stream is None:
+            first = True
             _loss.stream, _loss.error = stream, f"{type(exc).__name__}: {exc}"
             try:
                 devnull = os.open(os.devnull, os.O_WRONLY)
@@ -228,6 +253,28 @@ def _stream_failed(stream: TextIO, exc: BaseException) -> None:
             except (OSError, ValueError, AttributeError):
                 pass  # a stream with no file descriptor: we simply stop writing to it
         _loss.lines += 1
+    if first:
+        _tell_listeners()  # the loss is news for whoever reports it
+
+
+# Told (from whatever thread logged) when there is news to flush or report: a count
+# held back where none was, a log stream lost. Each must be cheap and thread-safe.
+_listeners: list[Callable[[], None]] = []
+
+
+def add_pending_listener(listener: Callable[[], None]) -> None:
+    _listeners.append(listener)
+
+
+def remove_pending_listener(listener: Callable[[], None]) -> None:
+    with contextlib.suppress(ValueError):
+        _listeners.remove(listener)
+
+
+def _tell_listeners() -> None:
+    for listener in tuple(_listeners):
+        with contextlib.suppress(Exception):  # logging must never raise into its caller
+            listener()
 
 
 class _NamedWriteLogger(structlog.WriteLogger):
@@ -287,6 +334,7 @@ class _Installed:
 
     limiter: RateLimiter | None = None
     handler: logging.Handler | None = None
+    levelno: int | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
@@ -356,7 +404,9 @@ def configure_logging(
         _installed.handler = _StdlibToStructlog()
         root.addHandler(_installed.handler)
         root.setLevel(levelno)
+        limiter.on_hold = _tell_listeners
         _installed.limiter = limiter
+        _installed.levelno = levelno
 
 
 def _console_traceback(*, colors: bool) -> Callable[[TextIO, Any], None]:
@@ -396,6 +446,20 @@ def flush_rate_limited(*, everything: bool = False) -> int:
     return len(summaries)
 
 
+def logs_at(level: int) -> bool:
+    """Whether a line at `level` is written (as `configure_logging` set it; without it,
+    True: whoever configured structlog decides). For a caller whose fields cost more
+    to build than the question: a debug line per frame, under a flood of frames."""
+    levelno = _installed.levelno
+    return levelno is None or level >= levelno
+
+
+def rate_limited_due_in() -> float | None:
+    """Seconds until `flush_rate_limited` has a count to report (None: none held back)."""
+    limiter = _installed.limiter
+    return None if limiter is None else limiter.due_in()
+
+
 def reset_logging() -> None:
     """Undo `configure_logging`: structlog defaults, our `logging` handler removed."""
     with _installed.lock:
@@ -404,6 +468,7 @@ def reset_logging() -> None:
             logging.getLogger().setLevel(logging.WARNING)  # the standard library's default
         _installed.handler = None
         _installed.limiter = None
+        _installed.levelno = None
         structlog.reset_defaults()
     with _loss.lock:
         _loss.stream, _loss.error, _loss.lines = None, "", 0

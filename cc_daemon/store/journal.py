@@ -10,7 +10,8 @@ into the daemon, nor drops a cast sample while a fix or an event could go instea
 
 Fixes are thinned to `telemetry_rate_hz` (`thinning.FixThinner`: the latest of each
 interval kept, the rest counted in a `telemetry_thinned` event at most every minute)
-and the buffer sized from it: no input fills the disk or the memory past a bound.
+and the buffer sized from it: no input fills the disk or the memory past a bound
+(`fixes.FixJournal`, which this builds on).
 """
 
 from __future__ import annotations
@@ -23,11 +24,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from cc_daemon.core.protocol import StartMeasuring, Telemetry
+from cc_daemon.core.protocol import StartMeasuring
 from cc_daemon.ground.clocksync import clock_sync
 from cc_daemon.store import sonde
 from cc_daemon.store.buffer import FIX, Row
 from cc_daemon.store.failures import emit
+from cc_daemon.store.fixes import FixJournal
 from cc_daemon.store.health import JournalHealth
 from cc_daemon.store.rows import (
     CAST,
@@ -45,8 +47,6 @@ from cc_daemon.store.rows import (
 )
 from cc_daemon.store.sessions import close_unfinished, open_session, session_exists
 from cc_daemon.store.spill import DEFAULT_FILE_MODE
-from cc_daemon.store.thinning import FixThinner, buffer_rows
-from cc_daemon.store.writer import BufferedWriter
 
 PHASES = frozenset({"soaking", "descending", "dwelling", "ascending", "aborting", "stranded"})
 OUTCOMES = frozenset({"completed", "skipped-shallow", "aborted", "unfinished"})
@@ -71,7 +71,7 @@ def _to_json(value: object) -> str:
     return json.dumps(value, default=str, sort_keys=True, separators=(",", ":"))
 
 
-class Journal(BufferedWriter):
+class Journal(FixJournal):
     """The survey journal. Construct, `open()`, record from the loop, `close()`.
 
     Call `open()` and `close()` from the thread that owns the daemon's start and
@@ -103,27 +103,18 @@ class Journal(BufferedWriter):
         """`on_connect` is called with every new connection before use (tests use it
         to set `PRAGMA max_page_count`, which makes SQLite report a full disk).
         `winch_backend` and `simulated` go on the session and on every cast (None:
-        not recorded).
-
-        `telemetry_rate_hz` None keeps every fix (a library default; the daemon
-        always passes its `store.telemetry_rate_hz`). `max_buffered_rows` None
-        sizes the buffer from the rate (`buffer_rows`), or 100,000 rows unthinned.
+        not recorded). `telemetry_rate_hz` and `max_buffered_rows`: `fixes.FixJournal`.
         """
-        self._thinner = FixThinner(telemetry_rate_hz) if telemetry_rate_hz is not None else None
-        self._sized_by_rate = max_buffered_rows is None and telemetry_rate_hz is not None
-        if max_buffered_rows is None:
-            max_buffered_rows = (
-                100_000 if telemetry_rate_hz is None else buffer_rows(telemetry_rate_hz)
-            )
         super().__init__(
             path,
-            wall=wall,
+            monotonic=monotonic,
+            telemetry_rate_hz=telemetry_rate_hz,
             max_buffered_rows=max_buffered_rows,
+            wall=wall,
             on_connect=on_connect,
             spill_dir=spill_dir,
             file_mode=file_mode,
         )
-        self._monotonic = monotonic
         # The same answer `cc-daemon status` gives: the kernel's (adjtimex), which
         # every time daemon sets, else timesyncd's flag file.
         self._clock_synced_now = clock_synced or _kernel_says_synced
@@ -180,105 +171,6 @@ class Journal(BufferedWriter):
     # Each method catches every exception: the journal's contract is that it
     # never takes the daemon down, and a bad argument or an injected clock that
     # fails is logged instead of ending a cast. Logging itself never raises.
-
-    def record_fix(
-        self,
-        msg: Telemetry | StartMeasuring,
-        *,
-        ap_time_s: int | None = None,
-        ap_time_order: str | None = None,
-    ) -> None:
-        """A telemetry fix (`P-T`) or a start-measuring frame (`P-M`), as received,
-        with the autopilot's clock as decoded in byte order `ap_time_order`."""
-        try:
-            mono = self._monotonic()
-            ts, lon, lat, alt, sonar, confidence, *mode = msg  # mode: the 26-byte M's
-            row = (
-                FIX,
-                mono,
-                self._wall(),
-                self._clock_synced(mono),
-                msg.frame,
-                ts,
-                lon,
-                lat,
-                alt,
-                sonar,
-                confidence,
-                mode[0] if mode else None,
-                ap_time_s,
-                ap_time_order,
-            )
-            thinner = self._thinner
-            if thinner is None:
-                self._append(row)
-                return
-            with self._lock:
-                first = not thinner.holding  # the writer may sleep with no deadline
-                ready = thinner.offer(row, mono)
-                thinned = thinner.report(mono)
-            if ready is not None:
-                self._append(ready)
-            elif first:
-                self._wake.set()  # to release the held fix once its interval is over
-            if thinned:
-                self._report_thinned(thinned)
-        except Exception as exc:
-            self._errors.error("record_fix", "journal could not record a fix", error=repr(exc))
-
-    def set_telemetry_rate(self, rate_hz: float) -> None:
-        """Thin telemetry to `rate_hz` from now on (a reload); a journal made without
-        a rate starts thinning. A buffer sized from the rate is resized with it."""
-        with self._lock:
-            if self._thinner is None:
-                self._thinner = FixThinner(rate_hz)
-                self._sized_by_rate = True
-            else:
-                self._thinner.set_rate(rate_hz)
-            if self._sized_by_rate:
-                self._max_rows = buffer_rows(rate_hz)
-
-    def _report_thinned(self, count: int) -> None:
-        assert self._thinner is not None
-        self.record_event(
-            "telemetry_thinned",
-            dropped=count,
-            rate_hz=self._thinner.rate_hz,
-            note="fixes beyond the journal's telemetry rate: the latest of each interval is kept",
-        )
-
-    def _holds_rows(self) -> bool:
-        # A held fix is released by a pass once its interval is over: keep the tick.
-        with self._lock:
-            return self._thinner is not None and self._thinner.holding
-
-    def _before_pass(self) -> None:
-        # The writer thread: a held fix whose interval is over goes to the buffer.
-        if self._thinner is None:
-            return
-        try:
-            mono = self._monotonic()
-            with self._lock:
-                ready = self._thinner.due(mono)
-            if ready is not None:
-                self._buffer_row(ready)
-        except Exception as exc:
-            self._errors.error("held_fix", "journal could not release a held fix", error=repr(exc))
-
-    def close(self, timeout: float = 5.0) -> None:
-        """As `BufferedWriter.close`, after the last held fix and the count of thinned ones."""
-        if not self._closed and self._thinner is not None:
-            try:
-                with self._lock:
-                    held = self._thinner.take()
-                    thinned = self._thinner.report(self._monotonic(), everything=True)
-                if held is not None:
-                    self._append(held)
-                if thinned:
-                    self._report_thinned(thinned)
-            except Exception as exc:
-                self._errors.error("close", "journal could not keep its last fix", error=repr(exc))
-        super().close(timeout)
 
     def start_cast(
         self,

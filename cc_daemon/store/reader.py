@@ -22,8 +22,6 @@ All the reads of one `JournalReader` see one snapshot of the file, so a cast
 and its samples agree even while the daemon is writing.
 """
 
-from __future__ import annotations
-
 import json
 import os
 import shutil
@@ -32,7 +30,7 @@ import tempfile
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
+from typing import TYPE_CHECKING, Any, NamedTuple, Self, TypeVar
 
 from cc_daemon.store import schema, sonar, sonde
 from cc_daemon.store.schema import StoreError
@@ -452,7 +450,7 @@ class JournalReader:
         except sqlite3.DatabaseError as exc:
             raise DamagedJournalError(f"{self.path} is damaged: cannot copy it ({exc})") from exc
 
-    def __enter__(self) -> JournalReader:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, exc_type: object, *exc_info: object) -> None:

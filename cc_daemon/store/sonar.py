@@ -7,8 +7,6 @@ flagged here, never mended. A journal from before the table existed has no
 readings (not an error). It never writes.
 """
 
-from __future__ import annotations
-
 import sqlite3
 from typing import NamedTuple
 

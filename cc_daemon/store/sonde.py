@@ -13,8 +13,6 @@ with the reason of each missing one in `missing_json`. A missing value is never
 written as a number. It never imports asyncio or the sonde's reader.
 """
 
-from __future__ import annotations
-
 import json
 import math
 import sqlite3

@@ -10,8 +10,6 @@ is not a survey.
 It only reads, and never opens the file itself.
 """
 
-from __future__ import annotations
-
 import sqlite3
 from typing import NamedTuple
 

@@ -43,10 +43,15 @@ class FixThinner:
         """A fix is held, for `due` to hand on once its interval is over."""
         return self._held is not None
 
-    def offer(self, row: Row, mono: float) -> Row | None:
-        """Take a fix stamped `mono`; return the fix of an earlier interval now due, if any."""
+    def offer(self, row: Row, mono: float, replaced: int = 0) -> Row | None:
+        """Take a fix stamped `mono`; return the fix of an earlier interval now due, if any.
+
+        `replaced`: fixes stamped the same `mono` just before this one (read together),
+        never offered: as if each had been, the newer replaces them and they are counted.
+        """
         slot = self._slot(mono)
         held, self._held = self._held, row
+        self.thinned += replaced
         if held is not None and slot == self._held_slot:
             self.thinned += 1  # the same interval: the newer fix replaces it
             return None

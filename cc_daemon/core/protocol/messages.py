@@ -15,8 +15,6 @@ what happens to out-of-range values: `timestamp_s` is taken modulo 65536 and
 `depth_mm` saturates at 65535 when encoded.
 """
 
-from __future__ import annotations
-
 from typing import Any, ClassVar, NamedTuple
 
 from cc_daemon.core.errors import FieldError

@@ -27,8 +27,6 @@ so as a library it is silent unless its user configures logging; the daemon's
 logging setup routes those records into its own output.
 """
 
-from __future__ import annotations
-
 import logging
 import re
 from collections.abc import Callable
