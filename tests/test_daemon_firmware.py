@@ -202,11 +202,23 @@ async def test_little_endian_timestamps_are_detected_and_echoed_in_their_real_va
     assert rows[-1] == (305, "little")
 
 
-async def test_telemetry_stopping_after_corrupt_frames_is_a_lost_m(rig: Rig) -> None:
+def _flipped(frame: bytes, at: int) -> bytes:
+    broken = bytearray(frame)
+    broken[at] ^= 0x01
+    return bytes(broken)
+
+
+# An M mangled so that no frame can start in it (no sync byte left): the parser
+# discards its bytes and reports no corrupt frame; they are the same evidence.
+UNFRAMED = bytes(b for b in M_26 if b not in (0x50, 0x52))
+
+
+@pytest.mark.parametrize(
+    "broken", [_flipped(M_26, 12), UNFRAMED], ids=["a-corrupt-frame", "bytes-no-frame-holds"]
+)
+async def test_telemetry_stopping_after_corrupt_frames_is_a_lost_m(rig: Rig, broken: bytes) -> None:
     daemon, port, _, db = rig
     await port.send(Telemetry(1, -37234000, 404508000, 650000, 30_000, 100))
-    broken = bytearray(M_26)
-    broken[12] ^= 0x01
     await port.send(bytes(broken))
     await asyncio.sleep(3.5)
     assert daemon.snapshot().lost_start is not None

@@ -410,6 +410,9 @@ class Daemon(CastRunner):
 
     def _on_data(self, data: bytes) -> None:
         fixes: list[Telemetry] = []  # a run of P-T, heard as one (`_fixes`)
+        # Bytes no frame could hold (an M whose sync byte flipped) are evidence of a
+        # lost M as a corrupt frame is (line_watch); each corrupt frame discards one.
+        unread = -self._parser.stats.bytes_discarded
         for message in self._parser.events(data):  # in stream order, errors included
             if type(message) is Telemetry:
                 fixes.append(message)
@@ -418,6 +421,7 @@ class Daemon(CastRunner):
                 self._fixes(fixes)
                 fixes = []
             if isinstance(message, CorruptFrame):
+                unread -= 1
                 now = self._clock.monotonic()
                 self._line.corrupt(now)
                 self._housekeeping.corrupt(now)
@@ -430,6 +434,8 @@ class Daemon(CastRunner):
                 _log.exception("error handling frame", frame=message.frame)
         if fixes:
             self._fixes(fixes)
+        if unread + self._parser.stats.bytes_discarded > 0:
+            self._line.corrupt(self._clock.monotonic())
 
     def _fixes(self, fixes: list[Telemetry]) -> None:
         """`P-T` frames read together: one instant, so heard as one (a flood's path).
