@@ -9,7 +9,14 @@ this one) is started as `benchmarks.goals` starts it (the shipped configuration,
 written its first `R-P` (and lets the daemon's signal handlers be, where valgrind
 keeps a real-time signal for itself). Needs valgrind; about 20 s a tree.
 
+`--libraries` counts, for scale, a bare interpreter importing the libraries
+every daemon needs, as the daemon imports them (asyncio without ssl, structlog
+without rich, pydantic with a model's validator, sqlite3, pyserial, tomllib,
+argparse, ctypes) and nothing of ours: the part of a start no change of ours
+can remove.
+
     python -m benchmarks.instructions [TREE ...]     (TREE: another checkout)
+    python -m benchmarks.instructions --libraries
 """
 
 from __future__ import annotations
@@ -52,6 +59,49 @@ main()
 """
 
 
+LIBRARIES = """
+import os, sys
+sys.modules["ssl"] = None
+import asyncio
+del sys.modules["ssl"]
+sys.modules["rich"] = None
+import structlog
+del sys.modules["rich"]
+import argparse, ctypes, json, pathlib, socket, sqlite3, tomllib
+import serial
+from cc_daemon.ground.leanimports import pydantic_without_plugins
+with pydantic_without_plugins():
+    from pydantic import BaseModel, Field
+    class One(BaseModel):
+        x: int = Field(default=1, ge=0)
+os._exit(0)
+"""
+
+
+CALLGRIND = ("valgrind", "--tool=callgrind")
+
+
+def callgrind_total(out: Path) -> int:
+    found = re.search(r"^(?:summary|totals):\s+(\d+)", out.read_text(), re.MULTILINE)
+    if found is None:
+        raise RuntimeError("callgrind wrote no total")
+    return int(found[1])
+
+
+def libraries() -> int:
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "callgrind.out"
+        subprocess.run(
+            [*CALLGRIND, f"--callgrind-out-file={out}", sys.executable, "-c", LIBRARIES],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=daemon_env(),
+            check=True,
+        )
+        return callgrind_total(out)
+
+
 def instructions(tree: Path) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         directory = Path(tmp)
@@ -84,15 +134,16 @@ def instructions(tree: Path) -> int:
                 proc.kill()
                 proc.wait()
             pty.close()
-        found = re.search(r"^(?:summary|totals):\s+(\d+)", out.read_text(), re.MULTILINE)
-        if found is None:
-            raise RuntimeError("callgrind wrote no total")
-        return int(found[1])
+        return callgrind_total(out)
 
 
 def main() -> int:
     if shutil.which("valgrind") is None:
         print("instructions: skipped, valgrind is not installed", flush=True)
+        return 0
+    if sys.argv[1:] == ["--libraries"]:
+        warm_bytecode([REPO])
+        print(f"  {libraries() / 1e6:8.1f} M  the libraries alone, imported as the daemon does")
         return 0
     trees = [Path(arg).resolve() for arg in sys.argv[1:]] or [REPO]
     warm_bytecode(trees)
