@@ -12,6 +12,7 @@ else: casts, samples, events, sonar readings, and the SQL.
 from __future__ import annotations
 
 import time
+from abc import abstractmethod
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -49,11 +50,13 @@ class FixJournal(BufferedWriter):
 
     # What the journal provides.
 
+    @abstractmethod
     def record_event(self, kind: str, **detail: object) -> None:
-        raise NotImplementedError
+        """Journal an event (`journal.Journal`): the thinning's summaries are events."""
 
+    @abstractmethod
     def _clock_synced(self, mono: float) -> int:
-        raise NotImplementedError
+        """Whether the wall clock was synchronised at `mono` (`journal.Journal`)."""
 
     # ------------------------------------------------- loop-thread recording
 
