@@ -28,9 +28,8 @@ from cc_daemon.core.winch.silence import (
 from cc_daemon.drivers.winch.motor import Direction
 from cc_daemon.sim import drum as drum_module
 from cc_daemon.sim.drum import DrumFaults, SimulatedDrum, mock_drum_for
-from cc_daemon.sim.options import Pace
 from tests.gpiokit import GpioRig, gpio_rig
-from tests.test_sim_runner import _casts, _row, _simulate
+from tests.test_sim_runner import _casts, _row, _simulate, gpio_mock_pace
 
 MPP = 3.141592653589793 * 0.09 / 2  # metres of line per pulse with the kit's drum
 # How far the dead reckoning may be from the drum's true line: the line within a
@@ -305,17 +304,9 @@ async def test_encoder_dead_on_the_mock_drum_halts_the_survey_with_the_reckoned_
         return drums[-1]
 
     monkeypatch.setattr(drum_module, "mock_drum_for", keep)
-    gpio_mock = Settings.model_validate(
-        {"winch": {"backend": "gpio", "gpio": {"pin_factory": "mock"}}}
-    )
-    quick = Pace(
-        "quick",
-        frame_period_s=0.25,
-        boat_speed_m_s=300.0,
-        winch_speed_m_s=1.0,
-        # 3 m down, 2 s of blind haul at 1 m/s: the probe stays about 1 m down.
-        cast={"bottom_dwell_s": 0.5, "max_duration_s": 7.0, "target_depth_m": 3.0},
-        finish_margin_s=2.0,
+    # 3 m down, 2 s of blind haul at 1 m/s: the probe stays about 1 m down.
+    gpio_mock, quick = gpio_mock_pace(
+        {"bottom_dwell_s": 0.5, "max_duration_s": 7.0, "target_depth_m": 3.0}, 2.0
     )
     code, text, _ = await _simulate(
         tmp_path, stations=2, pace=quick, settings=gpio_mock, winch_fault="encoder-dead"

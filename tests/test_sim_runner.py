@@ -605,9 +605,9 @@ def test_a_reader_that_leaves_mid_cast_does_not_strand_the_probe(tmp_path: Path)
         assert [c.outcome for c in reader.casts()] == ["completed"]
 
 
-async def test_a_switch_stuck_closed_on_the_mock_drum_halts_the_survey_honestly(
-    tmp_path: Path,
-) -> None:
+def gpio_mock_pace(cast: dict[str, float], finish_margin_s: float) -> tuple[Settings, Pace]:
+    """The GPIO winch on mock pins, and a quick pace with this cast: a winch fault's
+    survey in a few seconds."""
     gpio_mock = Settings.model_validate(
         {"winch": {"backend": "gpio", "gpio": {"pin_factory": "mock"}}}
     )
@@ -616,8 +616,17 @@ async def test_a_switch_stuck_closed_on_the_mock_drum_halts_the_survey_honestly(
         frame_period_s=0.25,
         boat_speed_m_s=300.0,
         winch_speed_m_s=1.0,
-        cast={"bottom_dwell_s": 0.5, "max_duration_s": 3.0, "target_depth_m": 2.0},
-        finish_margin_s=3.0,
+        cast=cast,
+        finish_margin_s=finish_margin_s,
+    )
+    return gpio_mock, quick
+
+
+async def test_a_switch_stuck_closed_on_the_mock_drum_halts_the_survey_honestly(
+    tmp_path: Path,
+) -> None:
+    gpio_mock, quick = gpio_mock_pace(
+        {"bottom_dwell_s": 0.5, "max_duration_s": 3.0, "target_depth_m": 2.0}, 3.0
     )
     code, text, _ = await _simulate(
         tmp_path, stations=2, pace=quick, settings=gpio_mock, winch_fault="switch-stuck"

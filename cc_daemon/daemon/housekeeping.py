@@ -27,7 +27,7 @@ import structlog
 
 from cc_daemon.daemon.quiet_port import QuietPort
 from cc_daemon.daemon.systemd import SystemdNotifier
-from cc_daemon.ground.clock import Clock
+from cc_daemon.ground.clock import Clock, sleep_until_or_set
 from cc_daemon.ground.logsetup import (
     add_pending_listener,
     flush_rate_limited,
@@ -155,13 +155,6 @@ class Housekeeping:
                 if deadline is None:
                     await self.changed.wait()
                     continue
-                # Never a busy loop, even on a deadline a rounding error keeps in the past.
-                sleeper = asyncio.ensure_future(self._clock.sleep_until(max(deadline, now + 0.001)))
-                changed = asyncio.ensure_future(self.changed.wait())
-                try:
-                    await asyncio.wait((sleeper, changed), return_when=asyncio.FIRST_COMPLETED)
-                finally:
-                    sleeper.cancel()
-                    changed.cancel()
+                await sleep_until_or_set(self._clock, deadline, now, self.changed)
         finally:
             remove_pending_listener(wake)

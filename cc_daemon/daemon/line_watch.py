@@ -32,7 +32,7 @@ from cc_daemon.core.cast.rf_repeat import RfRepeater
 from cc_daemon.core.cast.timestamps import TimestampOrder
 from cc_daemon.core.protocol import Finished, Message, Telemetry, encode
 from cc_daemon.core.winch.status import WinchStatus
-from cc_daemon.ground.clock import Clock
+from cc_daemon.ground.clock import Clock, sleep_until_or_set
 
 _log = structlog.get_logger("cc_daemon.service")
 
@@ -218,11 +218,4 @@ async def watch_line(line: LineWatch, clock: Clock, cast_running: Callable[[], b
         if deadline is None:
             await line.changed.wait()
             continue
-        # Never a busy loop, even on a deadline a rounding error keeps in the past.
-        sleeper = asyncio.ensure_future(clock.sleep_until(max(deadline, now + 0.001)))
-        changed = asyncio.ensure_future(line.changed.wait())
-        try:
-            await asyncio.wait((sleeper, changed), return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            sleeper.cancel()
-            changed.cancel()
+        await sleep_until_or_set(clock, deadline, now, line.changed)

@@ -38,3 +38,18 @@ class SystemClock:
     async def sleep_until(self, deadline: float) -> None:
         delay = deadline - time.monotonic()
         await asyncio.sleep(delay if delay > 0 else 0)
+
+
+async def sleep_until_or_set(
+    clock: Clock, deadline: float, now: float, event: asyncio.Event
+) -> None:
+    """Sleep until `deadline` on `clock`, or until `event` is set, whichever is first:
+    a duty asleep until its next deadline, woken when something brings one nearer.
+    Never a busy loop, even on a deadline a rounding error keeps in the past."""
+    sleeper = asyncio.ensure_future(clock.sleep_until(max(deadline, now + 0.001)))
+    changed = asyncio.ensure_future(event.wait())
+    try:
+        await asyncio.wait((sleeper, changed), return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        sleeper.cancel()
+        changed.cancel()
