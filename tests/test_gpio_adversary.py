@@ -139,3 +139,16 @@ def test_settings_that_can_never_work_exit_2_naming_the_key(
     gpio: dict[str, Any], named: str
 ) -> None:
     assert f"winch.gpio.{named}" in _refused(gpio)
+
+
+async def test_a_stop_while_a_start_waits_for_the_zero_leaves_the_motor_off() -> None:
+    # A move replacing a running one waits 20 ms before it starts; a stop (a signal's
+    # shutdown, the watchdog's fault path, close) in that window must cancel it.
+    async with gpio_rig(adc=True) as rig:
+        rig.winch.move_to(3.0)
+        await _until(lambda: rig.drum.motor()[0] == 1)
+        rig.winch.move_to(0.5)  # replaces the running move: its start waits
+        assert rig.winch.status().moving and rig.drum.motor() == (0, 0.0)
+        rig.winch.stop()
+        await asyncio.sleep(0.1)  # past the 20 ms
+        assert rig.drum.motor() == (0, 0.0) and not rig.winch.status().moving
