@@ -24,6 +24,7 @@ from cc_daemon.core.protocol.messages import (
     as_dict,
 )
 from cc_daemon.core.protocol.parser import CorruptFrame, ErrorKind, Parser, ParserStats, Sender
+from cc_daemon.core.protocol.runs import TelemetryRun
 
 __all__ = [
     "MESSAGE_TYPES",
@@ -48,6 +49,7 @@ __all__ = [
     "StartMeasuring",
     "Sync",
     "Telemetry",
+    "TelemetryRun",
     "as_dict",
     "checksum",
     "encode",

@@ -22,6 +22,11 @@ inside it.
 Timestamps are information only: nothing here rejects, reorders or drops a
 frame because of its timestamp.
 
+`events_in_runs` is `events` for a reader that hears `P-T` frames read together
+as one instant (the daemon): two or more back to back come as one
+`TelemetryRun`, every frame checked as alone, only the first and last decoded
+(`runs.py`). Under a flood of telemetry that is five times less work a byte.
+
 It logs through the standard library's `logging` (logger "cc_daemon.core.protocol"),
 so as a library it is silent unless its user configures logging; the daemon's
 logging setup routes those records into its own output.
@@ -40,11 +45,13 @@ from cc_daemon.core.protocol.frames import (
     CC_LAYOUTS,
     G_ALIAS_LAYOUT,
     MAX_FRAME_LENGTH,
+    AutopilotType,
     Decoder,
     Layout,
     Sync,
 )
 from cc_daemon.core.protocol.messages import Message
+from cc_daemon.core.protocol.runs import TelemetryRun, run_length
 
 _log = logging.getLogger("cc_daemon.protocol")
 
@@ -99,6 +106,7 @@ _SYNC_PATTERNS = {
     Sender.CC: re.compile(b"R"),
     Sender.BOTH: re.compile(b"[PR]"),
 }
+_TELEMETRY = Sync.AUTOPILOT << 8 | AutopilotType.TELEMETRY
 
 
 class Parser:
@@ -162,6 +170,24 @@ class Parser:
         self._buf += data
         self.stats.bytes_received += len(data)
         self._parse(out, report)  # type: ignore[arg-type]
+        return out
+
+    def events_in_runs(
+        self, data: bytes | bytearray | memoryview
+    ) -> list[Message | CorruptFrame | TelemetryRun]:
+        """Like `events`, but two or more `P-T` frames back to back come back as one
+        `TelemetryRun`: each frame checked as alone and counted in `stats`, only the
+        first and the last decoded (`runs`). For a reader that hears a run read
+        together as one instant, as the daemon does: a flood's hot path."""
+        out: list[Message | CorruptFrame | TelemetryRun] = []
+
+        def report(error: CorruptFrame) -> None:
+            self._report(error)
+            out.append(error)
+
+        self._buf += data
+        self.stats.bytes_received += len(data)
+        self._parse(out, report, runs=True)  # type: ignore[arg-type]
         return out
 
     def close(self) -> list[Message | CorruptFrame]:
@@ -237,7 +263,9 @@ class Parser:
             )
         return detail
 
-    def _parse(self, out: list[Message], report: ErrorCallback, *, final: bool = False) -> None:
+    def _parse(
+        self, out: list[Message], report: ErrorCallback, *, final: bool = False, runs: bool = False
+    ) -> None:
         buf = self._buf
         end = len(buf)
         get = self._layouts.get
@@ -247,7 +275,8 @@ class Parser:
         decoded = 0
         discarded = 0
         while pos + 1 < end:
-            layout = get(buf[pos] << 8 | buf[pos + 1])
+            key = buf[pos] << 8 | buf[pos + 1]
+            layout = get(key)
             if layout is None:
                 if buf[pos] in syncs:
                     report(
@@ -269,6 +298,13 @@ class Parser:
             stop = pos + length
             if stop > end:
                 break  # wait for the rest of the frame
+            if runs and key == _TELEMETRY and stop + length <= end:
+                count, block = run_length(buf, pos, end)
+                if count > 1:
+                    out.append(TelemetryRun(block, count, decode))  # type: ignore[arg-type]
+                    decoded += count
+                    pos = stop = pos + count * length
+                    continue
             sent = buf[stop - 2] << 8 | buf[stop - 1]
             if sum(buf[pos : stop - 2]) & 0xFFFF != sent:
                 if longer is not None and (stop < end or not final):

@@ -1,0 +1,154 @@
+"""Telemetry frames back to back, checked together: the parser's hot path.
+
+An autopilot streams `P-T` fixes; read in chunks, they arrive as runs of 25-byte
+frames back to back. This module owns checking such a run without a Python
+step per byte or per field: `run_length` says how many whole `P-T` frames
+starting at a position are each exactly what the parser accepts one by one
+(sync `P`, type `T`, sign bytes 0 or 1, longitude and latitude in range,
+confidence at most 100, checksum right), using column slices of the run's
+bytes (every 25th byte from an offset), `bytes.lstrip` and one checksum call a
+frame. A frame that fails any check ends the run there; the parser judges it
+on its own, as always, so what is reported corrupt does not change.
+
+`TelemetryRun` is such a run as the parser hands it on: a sequence of
+`Telemetry` whose first and last are decoded at once and the others only if
+asked for (debug logging, a journal keeping every fix). The daemon hears a run
+read together as one instant and journals its last fix: a flood of telemetry
+costs it a few microseconds a kilobyte, not a decode per frame.
+
+Pure: bytes in, counts and messages out.
+"""
+
+import struct
+import zlib
+from collections.abc import Sequence
+from operator import index as as_index
+from typing import overload
+
+from cc_daemon.core.protocol.frames import POSITION_LENGTH, Decoder
+from cc_daemon.core.protocol.messages import (
+    CONFIDENCE_MAX,
+    LAT_E7_MAX,
+    LON_E7_MAX,
+    Telemetry,
+)
+
+__all__ = ["TelemetryRun", "run_length"]
+
+_LENGTH = POSITION_LENGTH  # 25
+_BODY = _LENGTH - 2  # what the checksum sums
+_SYNC, _TYPE = b"P", b"T"
+_SIGNS = b"\x00\x01"
+_SIGN_OFFSETS = (4, 9, 14)  # longitude, latitude, altitude
+_CONFIDENCE_OFFSET = 22
+_CONFIDENCES = bytes(range(CONFIDENCE_MAX + 1))
+_CHECKSUM_HIGH, _CHECKSUM_LOW = 23, 24
+_LON_TOP_OFFSET, _LAT_TOP_OFFSET = 5, 10  # the magnitudes' most significant bytes
+# A magnitude whose top byte is below these is in range whatever its other bytes.
+_LON_TOP_SAFE = LON_E7_MAX >> 24  # 0x6B
+_LAT_TOP_SAFE = LAT_E7_MAX >> 24  # 0x35
+_BODIES = struct.Struct(f">{_BODY}s2x")
+_MAGNITUDES = struct.Struct(">5xIxI11x")
+
+
+def _leading(column: bytes, allowed: bytes) -> int:
+    """How many bytes at the start of `column` are among `allowed`."""
+    return len(column) - len(column.lstrip(allowed))
+
+
+def _first_difference(one: bytearray, other: bytearray, width: int) -> int:
+    """The index of the first `width`-byte item where `one` and `other` differ."""
+    for at in range(0, len(one), width):
+        if one[at : at + width] != other[at : at + width]:
+            return at // width
+    return len(one) // width
+
+
+def _in_range(block: bytes, count: int) -> int:
+    """How many of the first `count` frames have longitude and latitude in range."""
+    size = count * _LENGTH
+    if (
+        max(block[_LON_TOP_OFFSET:size:_LENGTH]) < _LON_TOP_SAFE
+        and max(block[_LAT_TOP_OFFSET:size:_LENGTH]) < _LAT_TOP_SAFE
+    ):
+        return count
+    for at, (lon, lat) in enumerate(_MAGNITUDES.iter_unpack(block[:size])):
+        if lon > LON_E7_MAX or lat > LAT_E7_MAX:
+            return at
+    return count
+
+
+def _checksums_right(block: bytes, count: int) -> int:
+    """How many of the first `count` frames carry the sum of their bytes."""
+    size = count * _LENGTH
+    # adler32 started at 0 holds the bytes' sum in its low 16 bits (a frame's 23
+    # bytes sum to at most 5,865, below adler's modulus): one C call a frame.
+    adler = zlib.adler32
+    sums = struct.pack(
+        f">{count}I", *[adler(body, 0) for (body,) in _BODIES.iter_unpack(block[:size])]
+    )
+    computed = bytearray(2 * count)
+    computed[0::2], computed[1::2] = sums[2::4], sums[3::4]
+    sent = bytearray(2 * count)
+    sent[0::2] = block[_CHECKSUM_HIGH:size:_LENGTH]
+    sent[1::2] = block[_CHECKSUM_LOW:size:_LENGTH]
+    return count if computed == sent else _first_difference(computed, sent, 2)
+
+
+def run_length(buf: bytes | bytearray, pos: int, end: int) -> tuple[int, bytes]:
+    """How many whole `P-T` frames start at `pos`, back to back before `end`, each
+    one the parser would decode on its own; and the bytes of at least that many."""
+    count = (end - pos) // _LENGTH
+    block = bytes(buf[pos : pos + count * _LENGTH])
+    count = min(
+        count,
+        _leading(block[0::_LENGTH], _SYNC),
+        _leading(block[1::_LENGTH], _TYPE),
+        _leading(block[_CONFIDENCE_OFFSET::_LENGTH], _CONFIDENCES),
+        *(_leading(block[offset::_LENGTH], _SIGNS) for offset in _SIGN_OFFSETS),
+    )
+    if count:
+        count = _in_range(block, count)
+    if count:
+        count = _checksums_right(block, count)
+    return count, block
+
+
+class TelemetryRun(Sequence[Telemetry]):
+    """Two or more `P-T` frames back to back, read together, each checked as the
+    parser checks one. `first` and `last` are decoded; the others when asked for."""
+
+    __slots__ = ("_block", "_count", "_decode", "first", "last")
+
+    def __init__(self, block: bytes, count: int, decode: Decoder) -> None:
+        self._block = block
+        self._decode = decode
+        self._count = count
+        self.first: Telemetry = decode(block, 0)  # type: ignore[assignment]
+        self.last: Telemetry = decode(block, (count - 1) * _LENGTH)  # type: ignore[assignment]
+
+    def __len__(self) -> int:
+        return self._count
+
+    @overload
+    def __getitem__(self, item: int) -> Telemetry: ...
+
+    @overload
+    def __getitem__(self, item: slice) -> list[Telemetry]: ...
+
+    def __getitem__(self, item: int | slice) -> Telemetry | list[Telemetry]:
+        if isinstance(item, slice):
+            return [self[at] for at in range(*item.indices(self._count))]
+        at = as_index(item)
+        if at < 0:
+            at += self._count
+        if not 0 <= at < self._count:
+            raise IndexError(f"frame {item} of a run of {self._count}")
+        if at == 0:
+            return self.first
+        if at == self._count - 1:
+            return self.last
+        return self._decode(self._block, at * _LENGTH)  # type: ignore[return-value]
+
+    def __repr__(self) -> str:
+        return f"TelemetryRun({self._count} P-T, first={self.first!r}, last={self.last!r})"
