@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from cc_daemon.core.protocol import Telemetry
+from cc_daemon.core.protocol import Parser, Sender, Telemetry, TelemetryRun, encode
 from cc_daemon.store import Journal
 from cc_daemon.store.synthetic import FakeClock
 from cc_daemon.store.thinning import FixThinner, buffer_rows
@@ -137,6 +137,35 @@ def test_fixes_read_together_are_one_instant_the_last_kept(tmp_path: Path) -> No
     assert rows == [(49, 1049), (99, 1099), (149, 1149), (199, 1199)]  # each read's last
     dropped = query(db, "SELECT detail_json FROM events WHERE kind = 'telemetry_thinned'")
     assert sum(json.loads(d)["dropped"] for (d,) in dropped) == 4 * 49  # none lost silently
+
+
+def parsed_run(fixes: list[Telemetry]) -> TelemetryRun:
+    [run] = Parser(Sender.AUTOPILOT).events_in_runs(b"".join(map(encode, fixes)))
+    assert isinstance(run, TelemetryRun)
+    return run
+
+
+def test_a_parsed_run_is_journaled_as_the_fixes_it_holds(tmp_path: Path) -> None:
+    # The daemon hands the journal a run as the parser made it: only its last
+    # fix decoded up front; a thinned journal needs no other, an unthinned one
+    # decodes every fix of it.
+    fixes = [FIX._replace(timestamp_s=n, sonar_distance_mm=n) for n in range(30)]
+    clock = FakeClock()
+    thinned, every = tmp_path / "thinned.db", tmp_path / "every.db"
+    journals = [
+        Journal(thinned, monotonic=clock.monotonic, wall=clock.wall, telemetry_rate_hz=2.0),
+        Journal(every, monotonic=clock.monotonic, wall=clock.wall),
+    ]
+    for journal in journals:
+        journal.open()
+        try:
+            journal.record_fixes(parsed_run(fixes), decode=lambda raw: raw, ap_time_order="big")
+        finally:
+            journal.close()
+    assert query(thinned, "SELECT ap_timestamp_s, sonar_distance_mm FROM fixes") == [(29, 29)]
+    dropped = query(thinned, "SELECT detail_json FROM events WHERE kind = 'telemetry_thinned'")
+    assert sum(json.loads(d)["dropped"] for (d,) in dropped) == 29
+    assert query(every, "SELECT ap_timestamp_s FROM fixes ORDER BY id") == [(n,) for n in range(30)]
 
 
 def test_fixes_read_together_unthinned_are_all_kept(tmp_path: Path) -> None:

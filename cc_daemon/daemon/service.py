@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import gc
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from logging import DEBUG
 from typing import TYPE_CHECKING, Any
 
@@ -48,6 +48,7 @@ from cc_daemon.core.protocol import (
     Sender,
     StartMeasuring,
     Telemetry,
+    TelemetryRun,
     as_dict,
 )
 from cc_daemon.core.status import DaemonStatus, Fix
@@ -409,16 +410,20 @@ class Daemon(CastRunner):
             self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
 
     def _on_data(self, data: bytes) -> None:
-        fixes: list[Telemetry] = []  # a run of P-T, heard as one (`_fixes`)
+        fixes: list[Sequence[Telemetry]] = []  # P-T read together, heard as one (`_fixes`)
         # Bytes no frame could hold (an M whose sync byte flipped) are evidence of a
         # lost M as a corrupt frame is (line_watch); each corrupt frame discards one.
         unread = -self._parser.stats.bytes_discarded
-        for message in self._parser.events(data):  # in stream order, errors included
-            if type(message) is Telemetry:
+        # In stream order, errors included; a run of P-T back to back comes as one.
+        for message in self._parser.events_in_runs(data):
+            if isinstance(message, TelemetryRun):
                 fixes.append(message)
                 continue
+            if isinstance(message, Telemetry):
+                fixes.append((message,))
+                continue
             if fixes:
-                self._fixes(fixes)
+                self._fixes(_together(fixes))
                 fixes = []
             if isinstance(message, CorruptFrame):
                 unread -= 1
@@ -433,11 +438,11 @@ class Daemon(CastRunner):
             except Exception:
                 _log.exception("error handling frame", frame=message.frame)
         if fixes:
-            self._fixes(fixes)
+            self._fixes(_together(fixes))
         if unread + self._parser.stats.bytes_discarded > 0:
             self._line.corrupt(self._clock.monotonic())
 
-    def _fixes(self, fixes: list[Telemetry]) -> None:
+    def _fixes(self, fixes: Sequence[Telemetry]) -> None:
         """`P-T` frames read together: one instant, so heard as one (a flood's path).
         Each counts and is heard as if alone (`LineWatch.heard_fixes`); the last is the
         fix, and the journal keeps no other (`record_fixes`: they share an interval)."""
@@ -569,3 +574,8 @@ class Daemon(CastRunner):
         self.casts_skipped += 1
         self._stations.finished(station, now, cast_id)
         self._send(Finished(self._time.at(now), 0))  # the probe never left home
+
+
+def _together(parts: list[Sequence[Telemetry]]) -> Sequence[Telemetry]:
+    """The fixes of one read, in order: a run alone as it is (its middle undecoded)."""
+    return parts[0] if len(parts) == 1 else [fix for part in parts for fix in part]
