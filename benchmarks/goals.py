@@ -24,6 +24,12 @@ blocking read and write, no asyncio, no parsing) is measured in the same run.
   through first: the bytes a pty holds (written until it refuses more) and the
   time our parser alone (in this process) takes over that many P-T.
 
+For scale beside the start, the least any start can take with the house's
+libraries: a bare interpreter, nothing of ours, that imports pydantic and
+validates a one-field model (the configuration must be validated, with pydantic,
+before the daemon touches the port), exec to exit; the median of as many runs,
+and of 3 under the quota.
+
     python -m benchmarks.goals      (or: make bench)
 """
 
@@ -194,6 +200,31 @@ def startup_s(
             stale.unlink()
 
 
+# What the daemon cannot start without, and nothing of ours: pydantic validating
+# a model, with no plugin search (as `ground.leanimports` builds the daemon's).
+PYDANTIC_FLOOR = """
+from pydantic import BaseModel
+
+class One(BaseModel):
+    x: int = 1
+
+One(x=2)
+"""
+
+
+def library_floor_s(preexec: Callable[[], None] | None = None) -> float:
+    """Seconds from exec to exit of a bare interpreter running PYDANTIC_FLOOR."""
+    env = dict(daemon_env(), PYDANTIC_DISABLE_PLUGINS="__all__")
+    began = time.monotonic()
+    subprocess.run(
+        [sys.executable, "-c", PYDANTIC_FLOOR],
+        env=env,
+        check=True,
+        preexec_fn=preexec,  # single-threaded here: writes our pid to a cgroup
+    )
+    return time.monotonic() - began
+
+
 def modules_at_ready(directory: Path, tree: Path = REPO) -> int:
     """How many modules the daemon imported by its first R-P (`-X importtime`)."""
     pty = PtyPair(directory / "ttyImports")
@@ -357,7 +388,7 @@ def flood_floor(directory: Path) -> tuple[int, float]:
         parser = Parser(Sender.AUTOPILOT)
         began = time.perf_counter()
         for at in range(0, len(stream), 4096):
-            parser.events(stream[at : at + 4096])
+            parser.events_in_runs(stream[at : at + 4096])  # as the daemon reads them
         best = min(best, time.perf_counter() - began)
     return held, best * 1000
 
@@ -409,6 +440,13 @@ def main() -> int:
         )
         modules = modules_at_ready(directory)
         print(f"         modules imported by the first R-P: {modules}", flush=True)
+        floors = [library_floor_s() for _ in range(STARTS)]
+        print(
+            "         the floor, nothing of ours: exec -> exit of an interpreter validating "
+            f"one pydantic model, median {statistics.median(floors):.3f} s of {STARTS} "
+            f"(min {min(floors):.3f})",
+            flush=True,
+        )
         if BASELINE is not None:
             then = statistics.median(wall for wall, _ in baseline)
             then_cpu = statistics.median(cpu for _, cpu in baseline)
@@ -424,6 +462,7 @@ def main() -> int:
         else:
             try:
                 runs = [startup_s(directory, f"ttyQuota{n}", quota.enter)[0] for n in range(3)]
+                floors = [library_floor_s(quota.enter) for _ in range(3)]
             finally:
                 quota.close()
             took = statistics.median(runs)
@@ -431,6 +470,11 @@ def main() -> int:
                 "the same under a 10 % CPU quota",
                 f"median {took:.2f} s of 3 (<= 1.5 s)",
                 took <= 1.5,
+            )
+            print(
+                "         the floor under the quota, nothing of ours: median "
+                f"{statistics.median(floors):.2f} s of 3",
+                flush=True,
             )
 
         main_wakes, other_wakes, cpu, rss = idle(directory)

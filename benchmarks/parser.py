@@ -39,6 +39,7 @@ from cc_daemon.core.protocol import (
     Parser,
     ProbePosition,
     ProbePositionRequest,
+    Sender,
     StartMeasuring,
     Telemetry,
     encode,
@@ -189,6 +190,22 @@ def timed(
 def ours() -> tuple[Callable[[bytes], object], Callable[[], int]]:
     parser = Parser()
     return parser.feed, lambda: parser.stats.frames_decoded
+
+
+def ours_in_runs() -> tuple[Callable[[bytes], object], Callable[[], int]]:
+    """The daemon's way: P-T back to back checked together (`Parser.events_in_runs`)."""
+    parser = Parser(Sender.AUTOPILOT)
+    return parser.events_in_runs, lambda: parser.stats.frames_decoded
+
+
+def ours_events() -> tuple[Callable[[bytes], object], Callable[[], int]]:
+    parser = Parser(Sender.AUTOPILOT)
+    return parser.events, lambda: parser.stats.frames_decoded
+
+
+def telemetry_flood(rng: random.Random) -> bytes:
+    """Nothing but P-T, as a babbling autopilot sends it: N_FRAMES of them."""
+    return b"".join(encode(random_message("P-T", rng, t)) for t in range(N_FRAMES))
 
 
 def reference() -> tuple[Callable[[bytes], object], Callable[[], int]]:
@@ -402,6 +419,14 @@ def _run() -> int:
                 floor = timed(append_only, chunks)
                 print(_line("floor: a feed that only appends", floor))
             del chunks
+
+    flood = chunked(telemetry_flood(random.Random(SEED)), CHUNK)
+    print("\ntelemetry only (a flood), 4 KiB chunks, the autopilot's parser:")
+    ways = (("events (a message a frame)", ours_events), ("events_in_runs", ours_in_runs))
+    for name, make in ways:
+        results["flood", "4 KiB chunks", name] = timed(make, flood, repeat=3)
+        print(_line(name, results["flood", "4 KiB chunks", name]))
+    del flood
 
     print("\npeers (their own messages, similar sizes; a time budget per mode):")
     mav_stream, mav_kinds = build_mavlink_stream(PEER_MESSAGES, SEED)
