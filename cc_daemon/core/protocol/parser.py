@@ -25,7 +25,8 @@ frame because of its timestamp.
 `events_in_runs` is `events` for a reader that hears `P-T` frames read together
 as one instant (the daemon): two or more back to back come as one
 `TelemetryRun`, every frame checked as alone, only the first and last decoded
-(`runs.py`). Under a flood of telemetry that is five times less work a byte.
+(`runs.py`). Under a flood of telemetry that is about a fifth of the work a
+byte (`benchmarks/parser.py`).
 
 It logs through the standard library's `logging` (logger "cc_daemon.core.protocol"),
 so as a library it is silent unless its user configures logging; the daemon's
