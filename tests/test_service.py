@@ -400,3 +400,26 @@ async def test_a_burst_of_fixes_is_heard_whole_and_the_last_is_the_fix(
         ).fetchone()[0]
     assert (39,) in kept  # the latest, kept at the end; every other one kept or counted
     assert len(kept) + (dropped or 0) == 40
+
+
+async def test_a_broken_fix_inside_a_burst_is_counted_corrupt_and_the_rest_heard(
+    rig: tuple[Daemon, FramePort],
+) -> None:
+    # The daemon reads P-T in runs (Parser.events_in_runs): a frame broken in the
+    # middle of a burst ends the run, is judged alone, and the fixes after it are
+    # a run of their own; the P-S after them is still answered with its own time.
+    daemon, port = rig
+    fixes = [Telemetry(n, -37260579, 404506308 + n, 702385, 8219, 100) for n in range(20)]
+    frames = [encode(fix) for fix in fixes]
+    frames[10] = frames[10][:24] + bytes([frames[10][24] ^ 0x01])  # checksum off
+    task = asyncio.create_task(daemon.run())
+    await asyncio.wait_for(daemon.ready.wait(), 5)
+    await port.send(b"".join(frames) + encode(ProbePositionRequest(20)))
+    got = await port.receive(2)
+    assert got is not None and isinstance(got.message, ProbePosition)
+    assert got.message.timestamp_s == 20
+    status = daemon.snapshot()
+    daemon.request_shutdown()
+    assert await asyncio.wait_for(task, 5) == EXIT_OK
+    assert status.frames_in == 20 and status.corrupt_frames == 1  # 19 fixes and the S
+    assert status.last_fix is not None and status.last_fix.message == fixes[-1]
