@@ -23,6 +23,7 @@ from cc_daemon.core.protocol import (
     Telemetry,
     TelemetryRun,
     encode,
+    runs,
 )
 from tests import strategies as cs
 
@@ -157,20 +158,23 @@ def test_runs_expanded_are_the_model_and_events_on_any_chunking(
     assert runs_parser.stats == frame_parser.stats
 
 
+# Runs are checked in windows of 32 frames, then 256...: breaks at the first
+# frame, the second, inside and at the edges of the windows (32, 288), the last.
 @pytest.mark.parametrize("name", sorted(BREAKS))
-@pytest.mark.parametrize("where", [0, 5, 9])
+@pytest.mark.parametrize("where", [0, 1, 5, 31, 32, 33, 287, 288, 299])
 def test_a_broken_frame_ends_the_run_and_is_judged_alone(name: str, where: int) -> None:
-    frames = [encode(fix(n)) for n in range(10)]
+    frames = [encode(fix(n)) for n in range(300)]
     frames[where] = BREAKS[name](frames[where])
     stream = b"".join(frames)
-    runs, frames = Parser(Sender.AUTOPILOT), Parser(Sender.AUTOPILOT)
-    got = expanded(runs.events_in_runs(stream) + runs.close())
-    assert got == frames.events(stream) + frames.close()
-    assert runs.stats == frames.stats
-    # Reported (an R frame is not an autopilot parser's to report: dropped unread).
-    assert runs.stats.errors == (0 if name == "sync byte R" else 1)
+    grouped, single = Parser(Sender.AUTOPILOT), Parser(Sender.AUTOPILOT)
+    got = expanded(grouped.events_in_runs(stream) + grouped.close())
+    assert got == single.events(stream) + single.close()
+    assert grouped.stats == single.stats
+    # Reported (an R frame is not an autopilot parser's to report: dropped unread),
+    # with whatever its bytes look like as the parser resynchronises inside it.
+    assert (grouped.stats.errors == 0) == (name == "sync byte R")
     assert [m.timestamp_s for m in got if isinstance(m, Telemetry)] == [
-        n for n in range(10) if n != where
+        n for n in range(300) if n != where
     ]
 
 
@@ -181,6 +185,33 @@ def test_values_at_the_edge_of_range_stay_in_the_run(name: str) -> None:
     [run] = Parser(Sender.AUTOPILOT).events_in_runs(b"".join(frames))
     assert isinstance(run, TelemetryRun) and len(run) == 6
     assert run[3] == Parser(Sender.AUTOPILOT).events(frames[3])[0]
+
+
+def test_frames_that_fail_are_not_checked_twice_and_runs_cost_their_length(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Frames failing one by one (bad checksums, good frames alone between bad
+    # ones) are never looked at as runs; a run is checked over a few times its
+    # own length at most, never over the rest of the read for each run.
+    examined: list[int] = []
+    check = runs._valid_frames
+
+    def counting(block: bytes, count: int) -> int:
+        examined.append(len(block))
+        return check(block, count)
+
+    monkeypatch.setattr(runs, "_valid_frames", counting)
+    good = [encode(fix(n)) for n in range(400)]
+    bad = b"PT" + bytes(23)
+    lone = b"".join(frame + bad for frame in good[:100])  # no run: no window checked
+    runs_of_two = b"".join(good[n] + good[n + 1] + bad for n in range(0, 200, 2))
+    for stream, windows in ((bad * 100, 0), (lone, 0), (runs_of_two, 100), (b"".join(good), 3)):
+        examined.clear()
+        got = Parser(Sender.AUTOPILOT).events_in_runs(stream)
+        assert expanded(got) == Parser(Sender.AUTOPILOT).events(stream)
+        assert len(examined) == windows
+        assert sum(examined) <= 16 * len(stream)  # runs of two: one 32-frame window each
+    assert examined == [32 * 25, 256 * 25, 112 * 25]  # 400 frames: 32, 256, the rest
 
 
 def test_a_run_is_a_sequence_of_its_fixes_decoded_when_asked() -> None:

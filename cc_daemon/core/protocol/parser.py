@@ -46,6 +46,7 @@ from cc_daemon.core.protocol.frames import (
     CC_LAYOUTS,
     G_ALIAS_LAYOUT,
     MAX_FRAME_LENGTH,
+    POSITION_LENGTH,
     AutopilotType,
     Decoder,
     Layout,
@@ -108,6 +109,19 @@ _SYNC_PATTERNS = {
     Sender.BOTH: re.compile(b"[PR]"),
 }
 _TELEMETRY = Sync.AUTOPILOT << 8 | AutopilotType.TELEMETRY
+_TELEMETRY_START = bytes((Sync.AUTOPILOT, AutopilotType.TELEMETRY))
+
+
+def _good_telemetry_at(buf: bytearray, pos: int, end: int) -> bool:
+    """A whole `P-T` with a right checksum starts at `pos` (its fields unchecked): the
+    cheap test before looking for a run, so that frames failing one by one (line
+    noise, a babbling autopilot) are never checked twice over."""
+    stop = pos + POSITION_LENGTH
+    return (
+        stop <= end
+        and buf[pos : pos + 2] == _TELEMETRY_START
+        and sum(buf[pos : stop - 2]) & 0xFFFF == buf[stop - 2] << 8 | buf[stop - 1]
+    )
 
 
 class Parser:
@@ -299,15 +313,18 @@ class Parser:
             stop = pos + length
             if stop > end:
                 break  # wait for the rest of the frame
-            if runs and key == _TELEMETRY and stop + length <= end:
-                count, block = run_length(buf, pos, end)
-                if count > 1:
-                    out.append(TelemetryRun(block, count, decode))  # type: ignore[arg-type]
-                    decoded += count
-                    pos = stop = pos + count * length
-                    continue
             sent = buf[stop - 2] << 8 | buf[stop - 1]
-            if sum(buf[pos : stop - 2]) & 0xFFFF != sent:
+            if sum(buf[pos : stop - 2]) & 0xFFFF == sent:
+                # A good P-T and another after it: a run of them (`runs`), however long.
+                if runs and key == _TELEMETRY and _good_telemetry_at(buf, stop, end):
+                    count = run_length(buf, pos, end)
+                    if count > 1:
+                        block = bytes(buf[pos : pos + count * length])
+                        out.append(TelemetryRun(block, count, decode))  # type: ignore[arg-type]
+                        decoded += count
+                        pos = stop = pos + count * length
+                        continue
+            else:
                 if longer is not None and (stop < end or not final):
                     # Maybe the firmware's 26-byte `M`: judge it on its 26th byte.
                     stop += 1

@@ -49,6 +49,10 @@ _LON_TOP_SAFE = LON_E7_MAX >> 24  # 0x6B
 _LAT_TOP_SAFE = LAT_E7_MAX >> 24  # 0x35
 _BODIES = struct.Struct(f">{_BODY}s2x")
 _MAGNITUDES = struct.Struct(">5xIxI11x")
+# A run is checked in windows: 32 frames (800 bytes), then eight times as many each
+# time. A flood's 4 KiB read is two windows; a run cut short costs one window more.
+_FIRST_WINDOW = 32
+_GROWTH = 8
 
 
 def _leading(column: bytes, allowed: bytes) -> int:
@@ -95,11 +99,9 @@ def _checksums_right(block: bytes, count: int) -> int:
     return count if computed == sent else _first_difference(computed, sent, 2)
 
 
-def run_length(buf: bytes | bytearray, pos: int, end: int) -> tuple[int, bytes]:
-    """How many whole `P-T` frames start at `pos`, back to back before `end`, each
-    one the parser would decode on its own; and the bytes of at least that many."""
-    count = (end - pos) // _LENGTH
-    block = bytes(buf[pos : pos + count * _LENGTH])
+def _valid_frames(block: bytes, count: int) -> int:
+    """How many of the `count` frames `block` holds, from its start, the parser would
+    decode one by one."""
     count = min(
         count,
         _leading(block[0::_LENGTH], _SYNC),
@@ -111,7 +113,28 @@ def run_length(buf: bytes | bytearray, pos: int, end: int) -> tuple[int, bytes]:
         count = _in_range(block, count)
     if count:
         count = _checksums_right(block, count)
-    return count, block
+    return count
+
+
+def run_length(buf: bytes | bytearray, pos: int, end: int) -> int:
+    """How many whole `P-T` frames start at `pos`, back to back before `end`, each
+    one the parser would decode on its own.
+
+    Checked in windows of `_FIRST_WINDOW` frames, then `_GROWTH` times as many each
+    time, up to the first frame that fails: a call costs at most a few times the run
+    it finds, plus a window, never the rest of the read for each run.
+    """
+    available = (end - pos) // _LENGTH
+    count, window = 0, _FIRST_WINDOW
+    while count < available:
+        size = min(window, available - count)
+        start = pos + count * _LENGTH
+        good = _valid_frames(bytes(buf[start : start + size * _LENGTH]), size)
+        count += good
+        if good < size:
+            break
+        window *= _GROWTH
+    return count
 
 
 class TelemetryRun(Sequence[Telemetry]):
