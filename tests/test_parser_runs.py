@@ -158,10 +158,10 @@ def test_runs_expanded_are_the_model_and_events_on_any_chunking(
     assert runs_parser.stats == frame_parser.stats
 
 
-# Runs are checked in windows of 32 frames, then 256...: breaks at the first
-# frame, the second, inside and at the edges of the windows (32, 288), the last.
+# Runs are checked in windows of 8 frames, then 64...: breaks at the first
+# frame, the second, inside and at the edges of the windows (8, 72), the last.
 @pytest.mark.parametrize("name", sorted(BREAKS))
-@pytest.mark.parametrize("where", [0, 1, 5, 31, 32, 33, 287, 288, 299])
+@pytest.mark.parametrize("where", [0, 1, 5, 7, 8, 9, 71, 72, 299])
 def test_a_broken_frame_ends_the_run_and_is_judged_alone(name: str, where: int) -> None:
     frames = [encode(fix(n)) for n in range(300)]
     frames[where] = BREAKS[name](frames[where])
@@ -210,8 +210,8 @@ def test_frames_that_fail_are_not_checked_twice_and_runs_cost_their_length(
         got = Parser(Sender.AUTOPILOT).events_in_runs(stream)
         assert expanded(got) == Parser(Sender.AUTOPILOT).events(stream)
         assert len(examined) == windows
-        assert sum(examined) <= 16 * len(stream)  # runs of two: one 32-frame window each
-    assert examined == [32 * 25, 256 * 25, 112 * 25]  # 400 frames: 32, 256, the rest
+        assert sum(examined) <= 16 * len(stream)  # runs of two: one 8-frame window each
+    assert examined == [8 * 25, 64 * 25, 328 * 25]  # 400 frames: 8, 64, the rest
 
 
 def test_a_run_is_a_sequence_of_its_fixes_decoded_when_asked() -> None:

@@ -42,30 +42,21 @@ _SIGNS = b"\x00\x01"
 _SIGN_OFFSETS = (4, 9, 14)  # longitude, latitude, altitude
 _CONFIDENCE_OFFSET = 22
 _CONFIDENCES = bytes(range(CONFIDENCE_MAX + 1))
-_CHECKSUM_HIGH, _CHECKSUM_LOW = 23, 24
 _LON_TOP_OFFSET, _LAT_TOP_OFFSET = 5, 10  # the magnitudes' most significant bytes
 # A magnitude whose top byte is below these is in range whatever its other bytes.
 _LON_TOP_SAFE = LON_E7_MAX >> 24  # 0x6B
 _LAT_TOP_SAFE = LAT_E7_MAX >> 24  # 0x35
-_BODIES = struct.Struct(f">{_BODY}s2x")
+_CHECKED = struct.Struct(f">{_BODY}sH")  # what the checksum sums, and the checksum
 _MAGNITUDES = struct.Struct(">5xIxI11x")
-# A run is checked in windows: 32 frames (800 bytes), then eight times as many each
-# time. A flood's 4 KiB read is two windows; a run cut short costs one window more.
-_FIRST_WINDOW = 32
+# A run is checked in windows: 8 frames (200 bytes), then eight times as many each
+# time (a flood's 4 KiB read is three windows); a run cut short costs one window more.
+_FIRST_WINDOW = 8
 _GROWTH = 8
 
 
 def _leading(column: bytes, allowed: bytes) -> int:
     """How many bytes at the start of `column` are among `allowed`."""
     return len(column) - len(column.lstrip(allowed))
-
-
-def _first_difference(one: bytearray, other: bytearray, width: int) -> int:
-    """The index of the first `width`-byte item where `one` and `other` differ."""
-    for at in range(0, len(one), width):
-        if one[at : at + width] != other[at : at + width]:
-            return at // width
-    return len(one) // width
 
 
 def _in_range(block: bytes, count: int) -> int:
@@ -84,19 +75,13 @@ def _in_range(block: bytes, count: int) -> int:
 
 def _checksums_right(block: bytes, count: int) -> int:
     """How many of the first `count` frames carry the sum of their bytes."""
-    size = count * _LENGTH
     # adler32 started at 0 holds the bytes' sum in its low 16 bits (a frame's 23
     # bytes sum to at most 5,865, below adler's modulus): one C call a frame.
     adler = zlib.adler32
-    sums = struct.pack(
-        f">{count}I", *[adler(body, 0) for (body,) in _BODIES.iter_unpack(block[:size])]
-    )
-    computed = bytearray(2 * count)
-    computed[0::2], computed[1::2] = sums[2::4], sums[3::4]
-    sent = bytearray(2 * count)
-    sent[0::2] = block[_CHECKSUM_HIGH:size:_LENGTH]
-    sent[1::2] = block[_CHECKSUM_LOW:size:_LENGTH]
-    return count if computed == sent else _first_difference(computed, sent, 2)
+    for at, (body, sent) in enumerate(_CHECKED.iter_unpack(block[: count * _LENGTH])):
+        if adler(body, 0) & 0xFFFF != sent:
+            return at
+    return count
 
 
 def _valid_frames(block: bytes, count: int) -> int:
