@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
 import structlog
 
 from cc_daemon.cli.app import main
@@ -250,3 +251,55 @@ def test_the_control_socket_is_named_after_its_status_socket() -> None:
     # Two daemons started by hand on two journals in one directory: two sockets.
     assert control_path(Path("/data/a.db.status.sock")) == Path("/data/a.db.control.sock")
     assert control_path(Path("/data/custom.sock")) == Path("/data/custom.sock.control.sock")
+
+
+def _died_mid_cast(tmp_path: Path, depth_m: float) -> int:
+    """A journal whose previous run died mid-cast (no end, no daemon_stopped)."""
+    journal = Journal(tmp_path / "j.db")
+    journal.open()
+    cast_id = journal.start_cast(station(), planned_depth_m=3.0, mode="continuous", plan={})
+    journal.record_sample(cast_id, depth_m, "ascending")
+    journal.close()
+    return cast_id
+
+
+async def test_a_restart_with_a_shorted_switch_and_the_probe_down_sends_no_r_f(
+    tmp_path: Path,
+) -> None:
+    # The previous run died with the probe 2 m down; the switch is shorted (closed).
+    # A fresh process has no count: the switch alone would be home on one witness,
+    # and R-F would release the boat with the probe 2 m down. The journal's depth
+    # stands until a haul brings the probe home: R-L, and the operator is told why.
+    cast_id = _died_mid_cast(tmp_path, 2.0)
+    async with (
+        gpio_rig(line_m=2.0, start_up=False, faults=DrumFaults(switch_stuck_closed=True)) as rig,
+        _boat(tmp_path, rig) as boat,
+    ):
+        got = [await boat.port.receive(1.5) for _ in range(2)]
+        assert all(r is not None and isinstance(r.message, FaultReport) for r in got)
+        status = rig.winch.status()
+        assert not status.at_home and status.depth_m == pytest.approx(2.0)
+        assert status.fault is not None and "cannot be home" in status.fault
+        assert rig.drum.motor() == (0, 0.0)
+        assert ("winch_left_down", {"left_down_m": 2.0}) in rig.events
+        boat.daemon.request_shutdown()
+        assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+    assert not any(isinstance(r.message, Finished) for r in boat.port.received)
+    recovered = json.loads(dict(_events(tmp_path))["cast_recovered"])
+    assert recovered == {"cast_id": cast_id, "rf_sent": False, "held_by_r_l": True}
+
+
+async def test_a_restart_with_the_probe_down_hauls_it_home_and_then_sends_r_f(
+    tmp_path: Path,
+) -> None:
+    # The same death, a sound switch: the start-up homing hauls the probe in, the
+    # switch closes at the end of a counted haul, and only then the station is freed.
+    cast_id = _died_mid_cast(tmp_path, 2.0)
+    async with gpio_rig(line_m=2.0, start_up=False) as rig, _boat(tmp_path, rig) as boat:
+        got = await boat.port.receive(10)
+        assert got is not None and isinstance(got.message, Finished)
+        assert rig.winch.status().at_home and rig.drum.line_m < 0.1
+        boat.daemon.request_shutdown()
+        assert await asyncio.wait_for(boat.task, 10) == EXIT_OK
+    recovered = json.loads(dict(_events(tmp_path))["cast_recovered"])
+    assert recovered == {"cast_id": cast_id, "rf_sent": True}

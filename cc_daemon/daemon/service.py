@@ -196,8 +196,11 @@ class Daemon(CastRunner):
         gc.freeze()  # start-up's objects live on: a full collection skips them (performance.md)
         try:
             # A probe left down (a crash, a power cut) comes home before READY.
+            left = [cast.last_depth_m for cast in self._interrupted if cast.last_depth_m]
             await prepare_winch(
-                self._winch, lambda: self._notifier.notify("STATUS=homing the winch")
+                self._winch,
+                lambda: self._notifier.notify("STATUS=homing the winch"),
+                left_down_m=max(left, default=None),
             )
             async with asyncio.TaskGroup() as tasks:
                 self._tasks = tasks

@@ -127,9 +127,12 @@ def native_pin_factory() -> Any:
         ) from exc
 
 
-async def prepare_winch(winch: Winch, announce: Callable[[], None] | None = None) -> None:
+async def prepare_winch(
+    winch: Winch, announce: Callable[[], None] | None = None, left_down_m: float | None = None
+) -> None:
     """What a backend must do before casts are accepted: the GPIO winch homes a probe
-    found down (`announce` is called first, to say so)."""
+    found down (`announce` is called first, to say so); `left_down_m`, the depth a
+    cast the previous run died in last journaled, is where its probe may still be."""
     # A GpioWinch exists only if its module was imported: asking `sys.modules` spares
     # the simulated winch importing gpiozero (33 ms, 2 MiB) for an isinstance check.
     gpio = sys.modules.get("cc_daemon.drivers.winch.gpio")
@@ -137,7 +140,7 @@ async def prepare_winch(winch: Winch, announce: Callable[[], None] | None = None
         # The switch alone: a probe whose switch is open is surely down.
         if not winch.switch_closed and announce is not None:
             announce()
-        await winch.start_up()
+        await winch.start_up(left_down_m)
 
 
 def hand_move(winch: Winch, depth_m: float) -> None:

@@ -106,8 +106,23 @@ class HomeWitnessing:
     def homed(self) -> bool:
         return self._homed
 
-    async def start_up(self) -> None:
-        """Make sure the probe is home before casts are accepted (READY comes after)."""
+    async def start_up(self, left_down_m: float | None = None) -> None:
+        """Make sure the probe is home before casts are accepted (READY comes after).
+
+        `left_down_m`: the journal's last depth of a cast the previous run died in.
+        A fresh process has no count, so a switch closed at start would be home on
+        one witness; from that depth only a haul, counted or run, may bring the
+        probe home (a shorted switch must not release the station with R-F)."""
+        if left_down_m is not None and left_down_m > self._cfg.count_tolerance_m:
+            self._estimate = DepthEstimate(
+                left_down_m, left_down_m, left_down_m, self.line_m, reckoned=False
+            )
+            _log.warning(
+                "the previous run died with the probe down: home needs a haul from there",
+                left_down_m=round(left_down_m, 3),
+                switch_closed=self.switch_closed,
+            )
+            self._record("winch_left_down", left_down_m=round(left_down_m, 3))
         if self.switch_closed:
             if self._settle is None and not self._verified:  # its edge not yet handed over
                 self._closed_since = self._closed_since or self._clock.monotonic()
