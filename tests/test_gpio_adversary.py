@@ -152,3 +152,39 @@ async def test_a_stop_while_a_start_waits_for_the_zero_leaves_the_motor_off() ->
         rig.winch.stop()
         await asyncio.sleep(0.1)  # past the 20 ms
         assert rig.drum.motor() == (0, 0.0) and not rig.winch.status().moving
+
+
+async def test_a_switch_closing_while_a_haul_waits_for_the_zero_keeps_the_motor_off() -> None:
+    # The haul's start waits 20 ms; a switch edge in that window stopped no motor
+    # (none ran). Had the haul been running, the edge would have stopped it: it must
+    # not start into the block, pulling until the stall rule (a review found it did).
+    async with gpio_rig() as rig:
+        rig.winch.move_to(3.0)
+        await _until(lambda: rig.drum.line_m > 0.3)
+        rig.winch.move_to(0.0)  # an abort: replaces a running move, its start waits
+        assert rig.winch._pending is not None
+        rig.drum.faults.switch_stuck_closed = True  # the edge, inside the window
+        for _ in range(20):  # 0.2 s, past the 20 ms: the motor stays off
+            await asyncio.sleep(0.01)
+            assert rig.drum.motor() == (0, 0.0)
+        status = rig.winch.status()  # the edge judged as ever (here: within tolerance)
+        assert not status.moving and (status.fault is None or "stall" not in status.fault)
+
+
+async def test_a_delayed_start_that_fails_is_a_fault_not_a_lost_error() -> None:
+    # Not delayed, a start that raises reaches whoever asked (the cast, the jog).
+    # Delayed, no one is waiting: it must be the winch's fault, the motor off.
+    async with gpio_rig() as rig:
+        rig.winch.move_to(3.0)
+        await _until(lambda: rig.drum.motor()[0] == 1)
+        rig.winch.move_to(0.5)
+        assert rig.winch._pending is not None
+
+        def broken(*_: object) -> None:
+            raise OSError("the H-bridge's pins are gone")
+
+        rig.winch._bridge.start = broken  # type: ignore[method-assign]
+        await _until(lambda: rig.winch.status().fault is not None, 2.0)
+        fault = rig.winch.status().fault
+        assert fault is not None and "could not be started" in fault and "pins are gone" in fault
+        assert rig.drum.motor() == (0, 0.0) and not rig.winch.status().moving

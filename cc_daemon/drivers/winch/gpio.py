@@ -335,7 +335,9 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             # may still carry current. The start waits out the rest of ZERO_SETTLE_S so
             # that the zero check below can judge the sensor (one stuck at its top would
             # otherwise pass unseen and stop every move as an overcurrent).
-            start = functools.partial(self._start_pending, direction, duty, homing, slow)
+            start = functools.partial(
+                self._start_pending, direction, duty, homing, slow, self.switch_closed
+            )
             self._pending = self._loop.call_later(ZERO_SETTLE_S - off_for, start)
             self._changed.set()
             return
@@ -381,16 +383,26 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self._schedule_tick()
 
     def _start_pending(
-        self, direction: Direction, duty: float | None, homing: bool, slow: bool
+        self, direction: Direction, duty: float | None, homing: bool, slow: bool, closed: bool
     ) -> None:
-        """A start that waited for the zero; a haul in only if the switch has not
-        closed meanwhile (its edge stopped no motor: none was running)."""
+        """A start that waited for the zero. A haul in does not start if the switch
+        closed meanwhile (`closed`: as it was when the start was asked for): its edge
+        would have stopped the haul, had it been running. A start that fails is a
+        fault, as when the start is not delayed."""
         self._pending = None
+        if direction is Direction.HAUL_IN and (self.switch_closed and not closed):
+            with self._lock:
+                self._goal = None
+            self._changed.set()
+            return
         if direction is Direction.HAUL_IN and self._at_the_block():
             with self._lock:
                 self._goal = None
             return
-        self._start_motor(direction, duty, homing=homing, slow=slow)
+        try:
+            self._start_motor(direction, duty, homing=homing, slow=slow)
+        except Exception as exc:  # the caller that asked has returned: no one else hears
+            self._fail(f"the motor could not be started: {type(exc).__name__}: {exc}")
 
     def _at_the_block(self) -> bool:
         """Both witnesses say the probe is at the block (the switch closed, the count at
