@@ -27,6 +27,7 @@ from cc_daemon.core.protocol import (
     ProbePositionRequest,
     ProbeUp,
     Telemetry,
+    encode,
 )
 from cc_daemon.core.winch.physics import LinePhysics
 from cc_daemon.daemon.service import EXIT_OK, Daemon
@@ -231,6 +232,23 @@ async def test_telemetry_stopping_after_corrupt_frames_is_a_lost_m(rig: Rig, bro
     await asyncio.sleep(0.3)
     [lost] = events(db, "start_measuring_lost")
     assert lost["corrupt_frames"] >= 1
+
+
+async def test_a_corrupt_frame_then_a_good_fix_in_one_read_is_no_lost_m(rig: Rig) -> None:
+    # The line works (a fix came after the corrupt frame): silence after it is no
+    # evidence of a lost M. The rest of the corrupt frame, which the parser reads
+    # through as it resynchronises, once counted again at the read's end as bytes
+    # no frame holds, after the fix: a false alarm after 3.5 s (a review found it).
+    daemon, port, _, db = rig
+    good = encode(Telemetry(1, -37234000, 404508000, 650000, 30_000, 100))
+    await port.send(good)
+    await asyncio.sleep(0.2)
+    await port.send(_flipped(good, 24) + encode(Telemetry(2, -37234000, 404508000, 650000, 0, 0)))
+    await asyncio.sleep(3.6)
+    assert daemon.snapshot().lost_start is None
+    daemon.request_shutdown()
+    await asyncio.sleep(0.3)
+    assert events(db, "start_measuring_lost") == []
 
 
 async def test_a_lost_m_shows_in_the_systemd_status_line(tmp_path: Path) -> None:

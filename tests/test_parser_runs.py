@@ -26,6 +26,7 @@ from cc_daemon.core.protocol import (
     runs,
 )
 from tests import strategies as cs
+from tests.test_parser import noisy_streams
 
 relaxed = settings(deadline=None)
 
@@ -246,3 +247,43 @@ def test_only_an_autopilot_parser_makes_runs() -> None:
     assert Parser(Sender.CC).events_in_runs(stream) == []
     [run] = Parser(Sender.BOTH).events_in_runs(stream)
     assert isinstance(run, TelemetryRun) and len(run) == 5
+
+
+def model_unframed(stream: bytes, senders: Sender) -> int:
+    """Bytes in no frame the model decoded or reported corrupt: those no frame could
+    start in (`ParserStats.bytes_unframed`)."""
+    spanned: set[int] = set()
+    for event in cs.model_events(stream, senders):
+        spanned.update(range(event.offset, event.offset + len(event.data)))
+    return len(stream) - len(spanned)
+
+
+@relaxed
+@given(
+    st.one_of(telemetry_streams(), st.builds(lambda pair: pair[0], noisy_streams())),
+    cs.senders,
+    st.booleans(),
+    st.data(),
+)
+def test_bytes_no_frame_could_start_in_are_counted_apart(
+    stream: bytes, senders: Sender, grouped: bool, data: st.DataObject
+) -> None:
+    # The daemon's evidence of an M whose sync byte flipped (no corrupt frame says
+    # so): never the rest of a corrupt frame the parser resynchronised through.
+    parser = Parser(senders)
+    feed = parser.events_in_runs if grouped else parser.events
+    for chunk in data.draw(cs.split(stream)):
+        feed(chunk)
+    parser.close()
+    assert parser.stats.bytes_unframed == model_unframed(stream, senders)
+
+
+def test_a_corrupt_frame_is_not_also_unframed_bytes() -> None:
+    good = encode(fix(1))
+    bad = good[:24] + bytes([good[24] ^ 0x01])
+    parser = Parser(Sender.AUTOPILOT)
+    parser.events_in_runs(bad + good)
+    assert parser.stats.bytes_discarded == 25 and parser.stats.bytes_unframed == 0
+    unframed_m = bytes(b for b in bad if b not in b"PR")  # no frame can start in it
+    parser.events_in_runs(unframed_m + good)
+    assert parser.stats.bytes_unframed == len(unframed_m)

@@ -415,8 +415,8 @@ class Daemon(CastRunner):
     def _on_data(self, data: bytes) -> None:
         fixes: list[Sequence[Telemetry]] = []  # P-T read together, heard as one (`_fixes`)
         # Bytes no frame could hold (an M whose sync byte flipped) are evidence of a
-        # lost M as a corrupt frame is (line_watch); each corrupt frame discards one.
-        unread = -self._parser.stats.bytes_discarded
+        # lost M as a corrupt frame is (line_watch).
+        unframed = -self._parser.stats.bytes_unframed
         # In stream order, errors included; a run of P-T back to back comes as one.
         for message in self._parser.events_in_runs(data):
             if isinstance(message, TelemetryRun):
@@ -429,7 +429,6 @@ class Daemon(CastRunner):
                 self._fixes(_together(fixes))
                 fixes = []
             if isinstance(message, CorruptFrame):
-                unread -= 1
                 now = self._clock.monotonic()
                 self._line.corrupt(now)
                 self._housekeeping.corrupt(now)
@@ -442,7 +441,7 @@ class Daemon(CastRunner):
                 _log.exception("error handling frame", frame=message.frame)
         if fixes:
             self._fixes(_together(fixes))
-        if unread + self._parser.stats.bytes_discarded > 0:
+        if unframed + self._parser.stats.bytes_unframed > 0:
             self._line.corrupt(self._clock.monotonic())
 
     def _fixes(self, fixes: Sequence[Telemetry]) -> None:

@@ -96,6 +96,9 @@ class ParserStats:
     truncated: int = 0
     bytes_received: int = 0
     bytes_discarded: int = 0
+    # Of those discarded, the bytes no corrupt frame reported: no frame could start
+    # in them (an `M` whose sync byte flipped is such bytes, and nothing else says so).
+    bytes_unframed: int = 0
 
     @property
     def errors(self) -> int:
@@ -155,6 +158,9 @@ class Parser:
         # pending frame's length once its type is known. Feeds that leave the
         # buffer short of it only append, which keeps one-byte feeds cheap.
         self._need = 2
+        # Where the bytes of the last corrupt frame reported end, in the buffer: the
+        # bytes skipped before it were that frame's, not unframed ones.
+        self._covered = 0
         self.on_error = on_error
         self.stats = ParserStats()
 
@@ -234,8 +240,10 @@ class Parser:
             )
             del buf[:1]
             self.stats.bytes_discarded += 1
+            self._covered = len(buf)  # the truncated frame's: every byte left
             self._parse(out, report, final=True)  # type: ignore[arg-type]
         self._need = 2
+        self._covered = 0
         return out
 
     # ------------------------------------------------------------ internals
@@ -289,6 +297,8 @@ class Parser:
         stop = 0
         decoded = 0
         discarded = 0
+        unframed = 0
+        covered = self._covered
         while pos + 1 < end:
             key = buf[pos] << 8 | buf[pos + 1]
             layout = get(key)
@@ -301,12 +311,14 @@ class Parser:
                             f"type byte 0x{buf[pos + 1]:02X} after sync {chr(buf[pos])!r}",
                         )
                     )
+                    covered = max(covered, pos + 2)
                     discarded += 1
                     pos += 1
                     continue
                 found = self._search(buf, pos + 1)
                 nxt = end if found is None else found.start()
                 discarded += nxt - pos
+                unframed += max(0, nxt - max(pos, covered))
                 pos = nxt
                 continue
             length, decode, longer = layout
@@ -341,6 +353,7 @@ class Parser:
                             self._checksum_detail(buf, pos, stop, longer is not None),
                         )
                     )
+                    covered = max(covered, stop)
                     discarded += 1
                     pos += 1
                     continue
@@ -348,6 +361,7 @@ class Parser:
                 out.append(decode(buf, pos))
             except FrameError as exc:
                 report(CorruptFrame(ErrorKind.BAD_FIELD, bytes(buf[pos:stop]), exc.detail))
+                covered = max(covered, stop)
                 discarded += 1
                 pos += 1
                 continue
@@ -355,9 +369,13 @@ class Parser:
             pos = stop
         if pos == end - 1 and buf[pos] not in syncs:
             discarded += 1  # a lone non-sync byte can never start a frame
+            if pos >= covered:
+                unframed += 1
             pos = end
         del buf[:pos]
+        self._covered = max(0, covered - pos)
         assert len(buf) < MAX_FRAME_LENGTH
         self._need = stop - pos if pos + 1 < end else 2
         self.stats.frames_decoded += decoded
         self.stats.bytes_discarded += discarded
+        self.stats.bytes_unframed += unframed
