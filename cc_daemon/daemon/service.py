@@ -413,41 +413,34 @@ class Daemon(CastRunner):
             self._notifier.notify(f"STATUS=serial port lost ({reason}); reopening")
 
     def _on_data(self, data: bytes) -> None:
-        fixes: list[Sequence[Telemetry]] = []  # P-T read together, heard as one (`_fixes`)
         # Bytes no frame could hold (an M whose sync byte flipped) are evidence of a
         # lost M as a corrupt frame is (line_watch).
         unframed = -self._parser.stats.bytes_unframed
         # In stream order, errors included; a run of P-T back to back comes as one.
         for message in self._parser.events_in_runs(data):
             if isinstance(message, TelemetryRun):
-                fixes.append(message)
-                continue
-            if isinstance(message, Telemetry):
-                fixes.append((message,))
-                continue
-            if fixes:
-                self._fixes(_together(fixes))
-                fixes = []
-            if isinstance(message, CorruptFrame):
+                self._fixes(message)
+            elif isinstance(message, Telemetry):
+                self._fixes((message,))
+            elif isinstance(message, CorruptFrame):
                 now = self._clock.monotonic()
                 self._line.corrupt(now)
                 self._housekeeping.corrupt(now)
-                continue
-            self._housekeeping.heard()
-            self.frames_in += 1
-            try:
-                self._handle(message)
-            except Exception:
-                _log.exception("error handling frame", frame=message.frame)
-        if fixes:
-            self._fixes(_together(fixes))
+            else:
+                self._housekeeping.heard()
+                self.frames_in += 1
+                try:
+                    self._handle(message)
+                except Exception:
+                    _log.exception("error handling frame", frame=message.frame)
         if unframed + self._parser.stats.bytes_unframed > 0:
             self._line.corrupt(self._clock.monotonic())
 
     def _fixes(self, fixes: Sequence[Telemetry]) -> None:
-        """`P-T` frames read together: one instant, so heard as one (a flood's path).
-        Each counts and is heard as if alone (`LineWatch.heard_fixes`); the last is the
-        fix, and the journal keeps no other (`record_fixes`: they share an interval)."""
+        """`P-T` frames back to back in one read (a run, or one alone): one instant, so
+        heard as one (a flood's path), the middle of a run never decoded. Each counts
+        and is heard as if alone (`LineWatch.heard_fixes`); the last is the fix, and the
+        journal keeps no other (`record_fixes`: they share an interval)."""
         self._housekeeping.heard()
         self.frames_in += len(fixes)
         last = fixes[-1]
@@ -576,8 +569,3 @@ class Daemon(CastRunner):
         self.casts_skipped += 1
         self._stations.finished(station, now, cast_id)
         self._send(Finished(self._time.at(now), 0))  # the probe never left home
-
-
-def _together(parts: list[Sequence[Telemetry]]) -> Sequence[Telemetry]:
-    """The fixes of one read, in order: a run alone as it is (its middle undecoded)."""
-    return parts[0] if len(parts) == 1 else [fix for part in parts for fix in part]
