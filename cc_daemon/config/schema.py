@@ -5,7 +5,6 @@ the combinations that cannot work together, and the frozen `Settings` they make.
 only `loading.load_settings` looks at files and the environment.
 """
 
-import math
 import re
 from pathlib import Path
 from typing import Annotated, Any, Literal, Self
@@ -38,9 +37,9 @@ from cc_daemon.config.rules import (
     _upper,
 )
 from cc_daemon.config.sonde import SondeSettings
+from cc_daemon.core.winch.drum import CurrentSensor, Drum, VoltageDivider
 from cc_daemon.core.winch.encoder import max_pulse_rate
-from cc_daemon.core.winch.sensors import RAIL_MARGIN
-from cc_daemon.core.winch.silence import TURNING_MIN_A
+from cc_daemon.core.winch.sensors import RAIL_MARGIN, TURNING_MIN_A
 
 # What each key means, and its unit, is documented once, in config/cc-daemon.toml and
 # docs/configuration.md; tests keep both in step with these models.
@@ -230,7 +229,7 @@ class WinchGpioSettings(BaseModel):
 
     def _check_debounce(self) -> None:
         """A debounce as long as half the pulse period at full speed loses pulses."""
-        metres_per_pulse = math.pi * self.drum_diameter_m / self.pulses_per_rev
+        metres_per_pulse = Drum(self.pulses_per_rev, self.drum_diameter_m).metres_per_pulse
         lowest = min(self.payout_duty, self.haulin_duty)
         period_s = 1 / max_pulse_rate(self.line_speed_m_s, lowest, metres_per_pulse)
         if self.pulse_debounce_s >= period_s / 2:
@@ -246,7 +245,8 @@ class WinchGpioSettings(BaseModel):
     def _check_current_range(self) -> None:
         """An overcurrent the sensor cannot read could never be seen: max_current_a must
         be below the most the sensor reads before the ADC's top rail."""
-        top_a = (self.adc_vref_v * (1 - RAIL_MARGIN) - self.current_zero_v) / self.current_v_per_a
+        sensor = CurrentSensor(self.adc_vref_v, self.current_zero_v, self.current_v_per_a)
+        top_a = sensor.amps(1 - RAIL_MARGIN)
         if self.max_current_a <= TURNING_MIN_A:
             raise _impossible(
                 "{0} must be above "
@@ -267,8 +267,8 @@ class WinchGpioSettings(BaseModel):
 
     def _check_supply_range(self) -> None:
         """The supply's range must be one the divider can tell from outside it."""
-        divider = (self.divider_r1_ohm + self.divider_r2_ohm) / self.divider_r2_ohm
-        full_scale = self.adc_vref_v * divider
+        divider = VoltageDivider(self.adc_vref_v, self.divider_r1_ohm, self.divider_r2_ohm)
+        full_scale = divider.volts(1.0)
         if self.supply_max_v >= full_scale:
             raise _impossible(
                 "{0} must be below the most the divider can read, {1} x ({2} + {3}) / {3} = "

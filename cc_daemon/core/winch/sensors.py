@@ -14,6 +14,9 @@ from __future__ import annotations
 
 RAIL_MARGIN = 0.002  # an ADC fraction this close to 0 or 1 is at a rail (2 LSB of 10 bits)
 ZERO_TOLERANCE_A = 0.5  # with the motor off the current is 0 A, give or take this
+# A motor drawing at least this under power is turning something: half as much
+# again as the zero check's tolerance, so sensor offset alone never reads as turning.
+TURNING_MIN_A = 1.5 * ZERO_TOLERANCE_A
 # The largest step between two readings of a running motor, in units of
 # max_current_a. A hard snag can take the current from running to stall within one
 # 50 ms reading (a winding's L/R is about a millisecond, a drum stopped by a snag

@@ -31,11 +31,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from enum import Enum
 
-from cc_daemon.core.winch.sensors import ZERO_TOLERANCE_A
+from cc_daemon.core.winch.sensors import TURNING_MIN_A
 
-# A motor drawing at least this under power is turning something: half as much
-# again as the zero check's tolerance, so sensor offset alone never reads as turning.
-TURNING_MIN_A = 1.5 * ZERO_TOLERANCE_A
 RUN_MARGIN = 1.5  # the drum may have run this much faster than line_speed_m_s says
 
 
