@@ -10,11 +10,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from cc_daemon.core.winch.status import WinchStatus
+from cc_daemon.core.winch.status import APPROACH_FRACTION, WinchStatus
 
 HOME_TOLERANCE_M = 0.005  # the limit switch closes within 5 mm of the top
 JAM_DEPTH_M = 0.5  # with fail_home, an ascent jams this far below home
-APPROACH_FRACTION = 0.5  # a slow motion (a blind descent) runs at half the line speed
 
 
 @dataclass(slots=True)

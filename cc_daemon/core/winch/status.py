@@ -64,6 +64,11 @@ class Winch(Protocol):
     async def close(self) -> None: ...
 
 
+# Near a target (within approach_m) a winch slows to this fraction of its speed,
+# and a slow motion (a blind descent) runs at it the whole way: every backend alike.
+APPROACH_FRACTION = 0.5
+
+
 @runtime_checkable
 class ApproachSpeed(Protocol):
     """A winch that can run a whole move at its approach speed (the speed it slows

@@ -41,7 +41,7 @@ from cc_daemon.core.winch.drum import Drum
 from cc_daemon.core.winch.encoder import EncoderJudge, coast_allowance, max_pulse_rate
 from cc_daemon.core.winch.safety import Limits, MotionGuard
 from cc_daemon.core.winch.silence import DepthEstimate
-from cc_daemon.core.winch.status import WinchStatus
+from cc_daemon.core.winch.status import APPROACH_FRACTION, WinchStatus
 from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
 from cc_daemon.drivers.winch.devices import GpioDevices
 from cc_daemon.drivers.winch.edges import EdgeCounting, Goal
@@ -61,7 +61,6 @@ _log = structlog.get_logger("cc_daemon.winch.gpio")
 GIL_SWITCH_S = 0.0005
 TICK_S = 0.05  # safety checks, ramp steps and watchdog feeding while the motor runs
 RAMP_FLOOR = 0.3  # the soft start begins at this fraction of the duty
-APPROACH_FRACTION = 0.5  # within approach_m of the target the duty is halved
 
 EventSink = Callable[..., None]  # (kind, **detail): the journal's record_event
 
