@@ -27,7 +27,7 @@ import structlog
 
 from cc_daemon.daemon.quiet_port import QuietPort
 from cc_daemon.daemon.systemd import SystemdNotifier
-from cc_daemon.ground.clock import Clock, sleep_until_or_set
+from cc_daemon.ground.clock import Clock, run_on_deadlines
 from cc_daemon.ground.logsetup import (
     add_pending_listener,
     flush_rate_limited,
@@ -147,14 +147,6 @@ class Housekeeping:
 
         add_pending_listener(wake)
         try:
-            while True:
-                now = self._clock.monotonic()
-                self.tick(now)
-                self.changed.clear()
-                deadline = self.next_deadline(now)
-                if deadline is None:
-                    await self.changed.wait()
-                    continue
-                await sleep_until_or_set(self._clock, deadline, now, self.changed)
+            await run_on_deadlines(self._clock, self.changed, self.tick, self.next_deadline)
         finally:
             remove_pending_listener(wake)

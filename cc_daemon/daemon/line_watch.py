@@ -32,7 +32,7 @@ from cc_daemon.core.cast.rf_repeat import RfRepeater
 from cc_daemon.core.cast.timestamps import TimestampOrder
 from cc_daemon.core.protocol import Finished, Message, Telemetry, encode
 from cc_daemon.core.winch.status import WinchStatus
-from cc_daemon.ground.clock import Clock, sleep_until_or_set
+from cc_daemon.ground.clock import Clock, run_on_deadlines
 
 _log = structlog.get_logger("cc_daemon.service")
 
@@ -210,12 +210,9 @@ class LineWatch:
 async def watch_line(line: LineWatch, clock: Clock, cast_running: Callable[[], bool]) -> None:
     """The daemon's duty: the jog's dead-man stop, R-F repeats and the lost-M watch,
     asleep until the next deadline, or until something brings one nearer."""
-    while True:
-        now = clock.monotonic()
-        line.tick(now, cast_running=cast_running())
-        line.changed.clear()
-        deadline = line.next_deadline(now, cast_running=cast_running())
-        if deadline is None:
-            await line.changed.wait()
-            continue
-        await sleep_until_or_set(clock, deadline, now, line.changed)
+    await run_on_deadlines(
+        clock,
+        line.changed,
+        lambda now: line.tick(now, cast_running=cast_running()),
+        lambda now: line.next_deadline(now, cast_running=cast_running()),
+    )

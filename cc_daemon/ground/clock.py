@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 from typing import Protocol
 
 
@@ -53,3 +54,24 @@ async def sleep_until_or_set(
     finally:
         sleeper.cancel()
         changed.cancel()
+
+
+async def run_on_deadlines(
+    clock: Clock,
+    changed: asyncio.Event,
+    tick: Callable[[float], object],
+    next_deadline: Callable[[float], float | None],
+) -> None:
+    """A duty's loop, for ever: `tick` what is due, then sleep until the next
+    deadline, or until `changed` is set (something brought one nearer); with no
+    deadline, until `changed` alone. Cleared after the tick, before the deadline is
+    asked: a change the tick did not see wakes the next sleep at once."""
+    while True:
+        now = clock.monotonic()
+        tick(now)
+        changed.clear()
+        deadline = next_deadline(now)
+        if deadline is None:
+            await changed.wait()
+        else:
+            await sleep_until_or_set(clock, deadline, now, changed)
