@@ -38,7 +38,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Flag, StrEnum
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from cc_daemon.core.errors import FrameError
 from cc_daemon.core.protocol.frames import (
@@ -183,14 +183,9 @@ class Parser:
     def events(self, data: bytes | bytearray | memoryview) -> list[Message | CorruptFrame]:
         """Like `feed`, but corrupt frames come back too, in stream order."""
         out: list[Message | CorruptFrame] = []
-
-        def report(error: CorruptFrame) -> None:
-            self._report(error)
-            out.append(error)
-
         self._buf += data
         self.stats.bytes_received += len(data)
-        self._parse(out, report)  # type: ignore[arg-type]
+        self._parse(out, self._reporting_to(out))  # type: ignore[arg-type]
         return out
 
     def events_in_runs(
@@ -201,14 +196,9 @@ class Parser:
         first and the last decoded (`runs`). For a reader that hears a run read
         together as one instant, as the daemon does: a flood's hot path."""
         out: list[Message | CorruptFrame | TelemetryRun] = []
-
-        def report(error: CorruptFrame) -> None:
-            self._report(error)
-            out.append(error)
-
         self._buf += data
         self.stats.bytes_received += len(data)
-        self._parse(out, report, runs=True)  # type: ignore[arg-type]
+        self._parse(out, self._reporting_to(out), runs=True)  # type: ignore[arg-type]
         return out
 
     def close(self) -> list[Message | CorruptFrame]:
@@ -221,11 +211,7 @@ class Parser:
         take a new stream.
         """
         out: list[Message | CorruptFrame] = []
-
-        def report(error: CorruptFrame) -> None:
-            self._report(error)
-            out.append(error)
-
+        report = self._reporting_to(out)
         buf = self._buf
         # feed's fast path may have left a lone non-sync byte unparsed: drop it
         # first. `final`: a 25-byte `M` is judged now, its 26th byte never comes.
@@ -247,6 +233,15 @@ class Parser:
         return out
 
     # ------------------------------------------------------------ internals
+
+    def _reporting_to(self, out: list[Any]) -> ErrorCallback:
+        """A corrupt frame's report that also puts it in `out`, in stream order."""
+
+        def report(error: CorruptFrame) -> None:
+            self._report(error)
+            out.append(error)
+
+        return report
 
     def _report(self, error: CorruptFrame) -> None:
         stats = self.stats
