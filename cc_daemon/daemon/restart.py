@@ -65,9 +65,9 @@ def _left_in_spill_files(journal: Journal) -> None:
     if not files:
         return
     lines = 0
-    for path in files:
-        with contextlib.suppress(OSError):
-            lines += path.read_bytes().count(b"\n")
+    for path in files:  # counted as read, a block at a time: the files may be large
+        with contextlib.suppress(OSError), path.open("rb") as file:
+            lines += sum(block.count(b"\n") for block in iter(lambda: file.read(1 << 16), b""))
     paths = [str(path) for path in files]
     _log.error(
         "an earlier run left rows only in spill files, not in the journal: keep these "

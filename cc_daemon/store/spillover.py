@@ -64,9 +64,13 @@ class SpillOver(RowBuffer, ABC):
     def _spill_line(self, row: Row) -> str:
         return repr(row)
 
+    def _spill_name(self, stamp: str) -> str:
+        """A spill file of this journal: `stamp` is when it began, or `*` to find them."""
+        return f"{self.path.stem}-unwritten-{stamp}.jsonl"
+
     def _spill_files(self) -> SpillFiles:
         return SpillFiles(
-            lambda: f"{self.path.stem}-unwritten-{utc_stamp(time.time())}.jsonl",
+            lambda: self._spill_name(utc_stamp(time.time())),
             lambda: spill_directories(self._active, self._spill_dir),
             self._file_mode,
         )
@@ -78,7 +82,7 @@ class SpillOver(RowBuffer, ABC):
         found: set[Path] = set()
         for directory in spill_directories(self._active, self._spill_dir, make=False):
             with contextlib.suppress(OSError):
-                found.update(directory.glob(f"{self.path.stem}-unwritten-*.jsonl"))
+                found.update(directory.glob(self._spill_name("*")))
         return sorted(found - mine, key=lambda p: (p.name, str(p)))
 
     def _episode_ended(self, **detail: object) -> None:
