@@ -10,7 +10,23 @@ import pytest
 
 from cc_daemon.ground.logsetup import reset_logging
 from cc_daemon.store import spill
+from tests import hygiene
 from tests.daemonkit import DaemonProcess
+
+
+# First of the autouse fixtures, so set up before and torn down after every other one.
+@pytest.fixture(autouse=True)
+def _no_leaks() -> Iterator[None]:
+    """A process left running, or an unclosed file, socket or subprocess, fails the
+    test that left it (tests/hygiene.py)."""
+    yield from hygiene.no_leaks()
+
+
+@pytest.fixture(autouse=True)
+def _terminal_signals() -> Iterator[None]:
+    """Every test starts with a terminal's signal dispositions, however the suite was
+    started (`make test &` from a script ignores SIGINT): tests/hygiene.py."""
+    yield from hygiene.terminal_signals()
 
 
 @pytest.fixture(autouse=True)

@@ -316,7 +316,6 @@ def test_at_a_terminal_decode_says_what_it_waits_for_and_ctrl_c_is_quiet() -> No
     import signal
     import subprocess
     import sys
-    import time
 
     from tests.daemonkit import REPO
 
@@ -338,11 +337,13 @@ def test_at_a_terminal_decode_says_what_it_waits_for_and_ctrl_c_is_quiet() -> No
             )
             if stop == "ctrl-d":
                 os.write(master, b"\x04")
-            else:
-                time.sleep(0.2)
+            else:  # the prompt is out: decode is reading, with its own Ctrl-C back
                 proc.send_signal(signal.SIGINT)
             _, err = proc.communicate(timeout=20)
         finally:
+            if proc.poll() is None:  # a failure above: never into the next test
+                proc.kill()
+                proc.communicate()
             os.close(master)
             os.close(slave)
         assert b"Traceback" not in err, err
