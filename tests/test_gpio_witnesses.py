@@ -18,7 +18,7 @@ import structlog
 
 from cc_daemon.config import Settings
 from cc_daemon.core.errors import WinchFault
-from cc_daemon.core.winch.encoder import EncoderJudge
+from cc_daemon.core.winch.encoder import RATE_WINDOW, EncoderJudge
 from cc_daemon.core.winch.sensors import current_fault
 from cc_daemon.core.winch.status import HOMING_FAILED, refuses_casts, verified_home
 from cc_daemon.core.winch.witness import LEAVE_PULSES, Witnesses
@@ -291,6 +291,56 @@ async def test_a_current_sensor_that_cannot_be_read_does_not_refuse_the_move(
         await rig.settle()
         assert rig.winch.status().fault is None
         assert "SPI bus gone" in (rig.winch.sensor_fault or "")
+
+
+async def _running(rig: Any) -> None:
+    """Until the probe is well clear of the block, the motor still paying out."""
+    async with asyncio.timeout(30):
+        while rig.winch.status().depth_m < 0.5:  # status() re-arms wait_change
+            await rig.winch.wait_change(0.05)
+    assert rig.winch._bridge.direction is Direction.PAY_OUT
+
+
+def _storm_now(rig: Any) -> None:
+    """Pulses faster than any drum, on this thread, as gpiozero's thread would call
+    them: the edge side stops the motor and tells the loop, which has not run yet."""
+    for _ in range(RATE_WINDOW + 1):
+        rig.winch._pulse_thread()
+    assert rig.winch._encoder_bad is not None
+
+
+async def test_a_stop_made_on_the_pin_thread_is_still_moving_until_the_loop_hears_why() -> None:
+    # Under load the loop can read the status between the edge thread's stop and its
+    # own handling of it: "stopped, no fault" short of the target read as an arrival.
+    async with gpio_rig() as rig:
+        rig.winch.move_to(3.0)
+        await _running(rig)
+        _storm_now(rig)
+        assert rig.drum.motor() == (0, 0.0)  # stopped at once, on the edge's thread
+        before = rig.winch.status()
+        assert before.moving or before.fault is not None, before
+        await rig.settle()
+        after = rig.winch.status()
+        assert after.fault is not None and "encoder fault" in after.fault
+
+
+async def test_what_the_pin_thread_told_a_closed_winch_is_dropped() -> None:
+    # A verdict still on its way to the loop when the winch closes would touch closed
+    # pins (GPIODeviceClosed in the loop's exception handler, seen under load).
+    errors: list[dict[str, Any]] = []
+    loop = asyncio.get_running_loop()
+    loop.set_exception_handler(lambda _loop, context: errors.append(context))
+    try:
+        async with gpio_rig() as rig:
+            rig.winch.move_to(3.0)
+            await _running(rig)
+            _storm_now(rig)
+            await rig.winch.close()  # no await inside: the verdict is still queued
+            await asyncio.sleep(0)  # ... and now it runs
+            await asyncio.sleep(0)
+    finally:
+        loop.set_exception_handler(None)
+    assert errors == []
 
 
 async def test_the_mock_drums_pulse_storm_is_an_encoder_fault_where_it_starts() -> None:

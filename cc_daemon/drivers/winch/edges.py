@@ -7,13 +7,17 @@ judgement of each pulse (`core.winch.encoder`), and the stops that cannot wait
 for the loop: the target count, the end of the line, the limit switch, the
 witnesses disagreeing at an edge. Under the winch's lock the motor is only ever
 *stopped* here; everything else is handed to the event loop with
-`call_soon_threadsafe`. Its state is set up by `GpioWinch.__init__`.
+`call_soon_threadsafe` (`_tell_loop`). A stop made here is counted in flight
+until the loop has heard why: until then the winch's status says it is still
+moving, never "stopped, no fault" short of its target (seen under load: a pulse
+storm's stop read as a motion that had simply ended at 1.27 m). Once the winch
+is closed, what was still on its way to the loop is dropped: the pins it would
+touch are closed. Its state is set up by `GpioWinch.__init__`.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import enum
 import threading
 from collections.abc import Callable
@@ -50,6 +54,8 @@ class EdgeCounting:
     _encoder_bad: str | None
     _ignored: int
     _witnesses: Witnesses
+    _stops_in_flight: int
+    _closed: bool
     drum: Drum
 
     if TYPE_CHECKING:  # the loop side's, in GpioWinch and its other bases
@@ -90,7 +96,7 @@ class EdgeCounting:
                 self._encoder_bad = bad
                 self._bridge.stop()
         if bad is not None:
-            self._tell_loop(self._encoder_faulted, bad)
+            self._tell_loop(self._encoder_faulted, bad, stopped=True)
             return
         with self._lock:
             self._count += step
@@ -119,7 +125,7 @@ class EdgeCounting:
                 stop = "arrived"
             if stop is not None:
                 self._bridge.stop()
-        self._tell_loop(self._pulse_seen, count, stop)
+        self._tell_loop(self._pulse_seen, count, stop, stopped=stop is not None)
 
     def _switch_closed_thread(self) -> None:
         with self._lock:
@@ -131,13 +137,30 @@ class EdgeCounting:
                 running = Direction.STOPPED
             elif running is not Direction.STOPPED:
                 self._bridge.stop()
-        self._tell_loop(self._switch_seen, True, running)
+        self._tell_loop(self._switch_seen, True, running, stopped=running is not Direction.STOPPED)
 
     def _switch_opened_thread(self) -> None:
         with self._lock:
             self._switch_now = False
         self._tell_loop(self._switch_seen, False, self._bridge.direction)
 
-    def _tell_loop(self, callback: Callable[..., None], *args: Any) -> None:
-        with contextlib.suppress(RuntimeError):  # the loop is closed: the motor is already off
-            self._loop.call_soon_threadsafe(callback, *args)
+    def _tell_loop(self, callback: Callable[..., None], *args: Any, stopped: bool = False) -> None:
+        """Hand `callback(*args)` to the loop; `stopped`: this thread stopped the motor,
+        and the status keeps saying "moving" until the loop has heard why."""
+        if stopped:
+            with self._lock:
+                self._stops_in_flight += 1
+        try:
+            self._loop.call_soon_threadsafe(self._heard, callback, stopped, args)
+        except RuntimeError:  # the loop is closed: the motor is already off
+            if stopped:
+                with self._lock:
+                    self._stops_in_flight -= 1
+
+    def _heard(self, callback: Callable[..., None], stopped: bool, args: tuple[Any, ...]) -> None:
+        """On the loop: what a thread told it, unless the winch has closed meanwhile."""
+        if stopped:
+            with self._lock:
+                self._stops_in_flight -= 1
+        if not self._closed:
+            callback(*args)

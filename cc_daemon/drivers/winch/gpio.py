@@ -117,6 +117,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self._encoder_bad: str | None = None  # pulses that cannot be true: not counted
         self._estimate: DepthEstimate | None = None  # where the probe is, the count in doubt
         self._ignored = 0  # pulses not counted since the encoder fault
+        self._stops_in_flight = 0  # motor stops made on a thread, not yet heard on the loop
         # Loop side only.
         self._fault: str | None = None
         self._homed = False
@@ -165,7 +166,11 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         return WinchStatus(
             depth_m=self.depth_m,  # the count's, or the best estimate when it is in doubt
             # Settling at the switch is still arriving: home is not yet verified.
-            moving=running or self._settle is not None or self._pending is not None,
+            # So is a stop made on gpiozero's thread that the loop has not heard yet.
+            moving=running
+            or self._settle is not None
+            or self._pending is not None
+            or self._stops_in_flight > 0,
             at_home=self.at_home,
             # A standing disagreement is the fault, except while an operator's
             # hand haul runs (it must not stop the haul that can clear it).
@@ -460,8 +465,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         # On the watchdog thread: stop first, then tell the loop (when it runs again).
         was = self._bridge.stop()
         if was is not Direction.STOPPED:
-            with contextlib.suppress(RuntimeError):  # a closed loop: nothing left to tell
-                self._loop.call_soon_threadsafe(self._watchdog_tripped, silent_s)
+            self._tell_loop(self._watchdog_tripped, silent_s, stopped=True)
 
     def _watchdog_tripped(self, silent_s: float) -> None:
         self._fail(
