@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+import time
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from cc_daemon.config import WinchGpioSettings
+from cc_daemon.core.winch.status import WinchStatus
 from cc_daemon.drivers.winch.devices import open_devices
 from cc_daemon.drivers.winch.gpio import GpioWinch
 from cc_daemon.ground.clock import SystemClock
@@ -29,7 +31,9 @@ FAST: dict[str, Any] = {
     "stall_timeout_s": 0.6,
     "home_margin_s": 1.0,
     "ramp_s": 0.1,
-    "loop_watchdog_s": 0.5,
+    # Long enough that a loaded machine pausing the loop never trips it by chance;
+    # the watchdog's own tests set 0.5 s (and benchmarks/winch.py times it).
+    "loop_watchdog_s": 2.0,
 }
 
 
@@ -46,11 +50,47 @@ class GpioRig:
     def kinds(self) -> list[str]:
         return [kind for kind, _ in self.events]
 
-    async def settle(self, timeout: float = 10.0) -> None:
+    async def settle(self, timeout: float = 30.0) -> None:
         """Wait until the motor is stopped (arrival, fault, home)."""
         async with asyncio.timeout(timeout):
             while self.winch.status().moving:
                 await self.winch.wait_change(0.2)
+
+    async def until(self, condition: Callable[[], object], timeout: float = 30.0) -> None:
+        """Wait until `condition()` holds: the drum's thread or the loop makes it so.
+        Each look re-arms `wait_change` (status()), so a change wakes it at once."""
+        async with asyncio.timeout(timeout):
+            while not condition():
+                self.winch.status()
+                await self.winch.wait_change(0.02)
+
+    async def quiet(self, at_least_s: float, timeout: float = 30.0) -> list[WinchStatus]:
+        """Every status seen until `at_least_s` has passed *and* no timer of the winch's
+        (a switch settling, a start waiting for the zero) is still due: what a rule
+        that fires after a while would have done by now, it has done, however late
+        a loaded machine ran it."""
+        seen: list[WinchStatus] = []
+        began = time.monotonic()
+        async with asyncio.timeout(timeout):
+            while True:
+                seen.append(self.winch.status())
+                pending = self.winch._settle is not None or self.winch._pending is not None
+                if not pending and time.monotonic() - began >= at_least_s:
+                    await asyncio.sleep(0)  # what was due with it has run too
+                    seen.append(self.winch.status())
+                    return seen
+                await self.winch.wait_change(0.02)
+
+
+def enable_history(rig: GpioRig) -> list[tuple[float, float]]:
+    """(absolute monotonic time, duty) of every change of the PWM enable pin."""
+    pin = rig.enable_pin
+    t = pin._last_change - sum(state.timestamp for state in pin.states[1:])
+    out = []
+    for state in pin.states:
+        t += state.timestamp
+        out.append((t, float(state.state)))
+    return out
 
 
 def settings(**extra: Any) -> WinchGpioSettings:

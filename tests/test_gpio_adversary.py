@@ -5,6 +5,7 @@ fix it names. MockFactory pins and the project's simulated drum."""
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -14,7 +15,7 @@ from cc_daemon.config import load_settings
 from cc_daemon.core.errors import ConfigError, WinchFault
 from cc_daemon.drivers.winch.motor import Direction
 from cc_daemon.sim.drum import DrumFaults
-from tests.gpiokit import gpio_rig
+from tests.gpiokit import enable_history, gpio_rig
 
 MPP = 3.141592653589793 * 0.09 / 2  # metres of line per pulse with the kit's drum
 
@@ -34,12 +35,15 @@ async def test_a_switch_that_shorts_after_a_dead_encoder_verdict_does_not_verify
         await rig.settle()
         status = rig.winch.status()
         assert status.fault is not None and status.fault.startswith("encoder dead")
-        assert rig.drum.line_m > 0.4 and status.depth_m > 0.4
+        # Down and clear of the block: how far depends on how soon the silence was
+        # judged (at least stall_timeout_s of a running motor), never less than a pulse.
+        assert rig.drum.line_m > MPP and status.depth_m > MPP
         rig.drum.faults.switch_stuck_closed = True
-        await asyncio.sleep(0.6)  # past switch_settle_s
-        status = rig.winch.status()
-        assert not status.at_home and status.fault is not None
-        assert "one witness cannot verify home" in status.fault
+        await rig.until(lambda: rig.winch.switch_closed)
+        seen = await rig.quiet(0.6)  # past switch_settle_s: its verdict is in
+        assert not any(s.at_home for s in seen)
+        status = seen[-1]
+        assert status.fault is not None and "one witness cannot verify home" in status.fault
 
 
 async def test_a_current_sensor_stuck_at_its_top_mid_descent_does_not_strand_the_probe() -> None:
@@ -150,8 +154,8 @@ async def test_a_stop_while_a_start_waits_for_the_zero_leaves_the_motor_off() ->
         rig.winch.move_to(0.5)  # replaces the running move: its start waits
         assert rig.winch.status().moving and rig.drum.motor() == (0, 0.0)
         rig.winch.stop()
-        await asyncio.sleep(0.1)  # past the 20 ms
-        assert rig.drum.motor() == (0, 0.0) and not rig.winch.status().moving
+        seen = await rig.quiet(0.1)  # past the 20 ms: the start, had it stayed, ran
+        assert rig.drum.motor() == (0, 0.0) and not seen[-1].moving
 
 
 async def test_a_switch_closing_while_a_haul_waits_for_the_zero_keeps_the_motor_off() -> None:
@@ -161,13 +165,15 @@ async def test_a_switch_closing_while_a_haul_waits_for_the_zero_keeps_the_motor_
     async with gpio_rig() as rig:
         rig.winch.move_to(3.0)
         await _until(lambda: rig.drum.line_m > 0.3)
+        switch = rig.drum.factory.pin(rig.winch._cfg.switch_pin)
+        rig.drum.close()  # the test drives the switch: the edge surely inside the window
         rig.winch.move_to(0.0)  # an abort: replaces a running move, its start waits
         assert rig.winch._pending is not None
-        rig.drum.faults.switch_stuck_closed = True  # the edge, inside the window
-        for _ in range(20):  # 0.2 s, past the 20 ms: the motor stays off
-            await asyncio.sleep(0.01)
-            assert rig.drum.motor() == (0, 0.0)
-        status = rig.winch.status()  # the edge judged as ever (here: within tolerance)
+        waits_from = time.monotonic()
+        switch.drive_high()  # the edge, inside the window
+        seen = await rig.quiet(0.2)  # past the 20 ms: the start, had it stayed, ran
+        assert not any(duty > 0 for t, duty in enable_history(rig) if t >= waits_from)
+        status = seen[-1]  # the edge judged as ever (here: within tolerance)
         assert not status.moving and (status.fault is None or "stall" not in status.fault)
 
 

@@ -36,8 +36,7 @@ from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.store import Journal, JournalReader
 from tests.daemonkit import FAST_CAST, merge, station
-from tests.gpiokit import GpioRig, gpio_rig
-from tests.test_gpio_winch import enable_history
+from tests.gpiokit import GpioRig, enable_history, gpio_rig
 
 
 def _settings(tmp_path: Path, port: Path) -> Settings:
@@ -81,13 +80,13 @@ async def _boat(tmp_path: Path, rig: GpioRig) -> AsyncIterator[Boat]:
         daemon = Daemon(_settings(tmp_path, pty.path), winch=rig.winch)
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), 30)
         try:
             yield Boat(daemon, port, task)
         finally:
             if not task.done():
                 daemon.request_shutdown(immediate=True)
-            await asyncio.wait({task}, timeout=10)
+            await asyncio.wait({task}, timeout=30)
             await port.close()
 
 
@@ -103,7 +102,7 @@ async def test_a_stall_going_down_aborts_and_brings_the_probe_home(tmp_path: Pat
         assert isinstance(last, Finished) and last.depth_mm == 0
         assert rig.winch.status().at_home and rig.drum.motor() == (0, 0.0)
         boat.daemon.request_shutdown()
-        assert await asyncio.wait_for(boat.task, 10) == 0
+        assert await asyncio.wait_for(boat.task, 30) == 0
     [(outcome, reason, backend, simulated)] = _cast_rows(tmp_path)
     assert outcome == "aborted" and "stall: no drum pulse" in reason
     assert (backend, simulated) == ("gpio-mock", 1)
@@ -113,7 +112,7 @@ async def test_a_stall_hauling_in_strands_the_probe_loudly(tmp_path: Path) -> No
     async with gpio_rig(faults=DrumFaults(jam_in_at_m=1.5)) as rig, _boat(tmp_path, rig) as boat:
         await boat.port.send(station())
         reports: list[int] = []
-        deadline = time.monotonic() + 15
+        deadline = time.monotonic() + 60
         while time.monotonic() < deadline and boat.daemon.snapshot().phase != "stranded":
             got = await boat.port.receive(0.5)
             if got is not None and isinstance(got.message, DepthReport):
@@ -125,7 +124,7 @@ async def test_a_stall_hauling_in_strands_the_probe_loudly(tmp_path: Path) -> No
         more = [await boat.port.receive(1.5) for _ in range(2)]
         assert not any(r is not None and isinstance(r.message, Finished) for r in more)
         boat.daemon.request_shutdown()
-        assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+        assert await asyncio.wait_for(boat.task, 30) == EXIT_PROBE_MAY_BE_DOWN
 
 
 async def test_an_immediate_stop_mid_descent_switches_the_motor_off_at_once(
@@ -133,17 +132,17 @@ async def test_an_immediate_stop_mid_descent_switches_the_motor_off_at_once(
 ) -> None:
     async with gpio_rig() as rig, _boat(tmp_path, rig) as boat:
         await boat.port.send(station())
-        async with asyncio.timeout(5):
+        async with asyncio.timeout(30):
             while rig.drum.motor()[0] != 1:
                 rig.winch.status()  # what wait_change waits for is a change after this
                 await rig.winch.wait_change(0.05)
-        await asyncio.sleep(0.3)
+        await rig.until(lambda: rig.drum.line_m > 0.3)
         assert rig.drum.motor()[0] == 1  # going down
         stopped_at = time.monotonic()
         boat.daemon.request_shutdown(immediate=True)  # a second Ctrl-C
-        off = enable_history(rig)[-1]
-        assert off[1] == 0.0 and off[0] - stopped_at < 0.05
-        assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+        off = enable_history(rig)[-1]  # read before this test lets the loop run again
+        assert off[1] == 0.0 and off[0] >= stopped_at
+        assert await asyncio.wait_for(boat.task, 30) == EXIT_PROBE_MAY_BE_DOWN
         assert 0.2 < rig.drum.line_m < 3.0  # stopped where it was, not hauled
 
 
@@ -285,7 +284,7 @@ def test_simulate_runs_a_survey_on_the_gpio_winch_with_mock_pins(tmp_path: Path)
         text=True,
         env=env,
         cwd=tmp_path,
-        timeout=50,
+        timeout=240,  # a whole survey in real time: far longer on a loaded machine
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr
     assert "SURVEY OK" in done.stdout
@@ -314,7 +313,7 @@ async def test_the_daemon_homes_a_probe_left_down_before_it_says_ready(tmp_path:
             second = await asyncio.to_thread(server.recv, 1024)
             home_when_ready = rig.winch.status().at_home
             daemon.request_shutdown()
-            assert await asyncio.wait_for(task, 10) == 0
+            assert await asyncio.wait_for(task, 30) == 0
     assert first.endswith(b"homing the winch")
     assert second.startswith(b"READY=1\n")
     assert home_when_ready and rig.drum.line_m <= 0.05
@@ -332,7 +331,7 @@ async def test_a_stuck_daemon_loop_stops_the_motor_and_the_fault_is_journaled(
         daemon = Daemon(settings, simulators=SIMULATORS)
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), 30)
         await port.send(station())
         while (got := await port.receive(5)) is not None:
             if isinstance(got.message, DepthReport) and got.message.depth_mm > 500:
@@ -344,7 +343,7 @@ async def test_a_stuck_daemon_loop_stops_the_motor_and_the_fault_is_journaled(
             if isinstance(got.message, Finished):
                 break
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 10) == 0
+        assert await asyncio.wait_for(task, 30) == 0
         await port.close()
     assert isinstance(frames[-1], Finished) and frames[-1].depth_mm == 0  # aborted, home
     with sqlite3.connect(tmp_path / "j.db") as db:
@@ -368,10 +367,10 @@ async def test_the_simulated_winchs_fault_keys_jam_the_mock_drum(tmp_path: Path)
         daemon = Daemon(settings, simulators=SIMULATORS)
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), 30)
         frames = await Boat(daemon, port, task).cast()
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 10) == 0
+        assert await asyncio.wait_for(task, 30) == 0
         await port.close()
     last = frames[-1].message
     assert isinstance(last, Finished) and last.depth_mm == 0
