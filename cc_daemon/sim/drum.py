@@ -243,7 +243,18 @@ class SimulatedDrum:
             last = now
 
     def step(self, dt: float) -> None:
-        """Advance the drum by `dt` seconds of the motor as it is now."""
+        """Advance the drum by `dt` seconds of the motor, reading the H-bridge again at
+        least every quarter pulse of line: a thread that ran late (a loaded machine)
+        must not carry the probe past the pulse at which the winch stopped the motor.
+        A real drum stops there; a simulation that moved the whole `dt` at once did
+        not (1.155 m out against an end of line at 1.0 m and 0.141 m a pulse)."""
+        quarter_s = self.drum.metres_per_pulse / 4 / max(self.full_speed_m_s, 1e-9)
+        while dt > quarter_s:
+            self._advance(quarter_s)
+            dt -= quarter_s
+        self._advance(dt)
+
+    def _advance(self, dt: float) -> None:
         direction, duty = self.motor()
         with self._lock:
             line = self._line
