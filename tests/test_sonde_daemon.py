@@ -8,7 +8,6 @@ comes back by itself. A probe on the bottom stops the descent.
 from __future__ import annotations
 
 import asyncio
-import itertools
 import random
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -26,11 +25,14 @@ from cc_daemon.sim.water import SondeModel, WaterColumn
 from cc_daemon.store import JournalReader
 from tests.daemonkit import FAST_CAST, merge, station
 
+PERIOD_S = 0.5
+
 FAST_SONDE = {
     "backend": "modbus",
-    "period_s": 0.25,
+    "period_s": PERIOD_S,
     "idle_period_s": 1.0,
-    "timeout_s": 0.1,
+    # Far above a reply's few milliseconds, even on a loaded machine.
+    "timeout_s": 0.8 * PERIOD_S,
     "retries": 0,
     "reconnect_initial_s": 0.1,
     "reconnect_max_s": 0.3,
@@ -53,6 +55,18 @@ class Rig:
     def _line_out(self) -> float:
         winch = self.daemon._winch
         return winch.status().depth_m if winch is not None else 0.0
+
+    def statuses(self) -> list[str]:
+        """The cast's sonde rows journaled so far (the writer commits each second)."""
+        if not self.db.exists():
+            return []
+        with JournalReader(self.db) as reader:
+            return [r.status for r in reader.sonde_samples() if r.cast_id is not None]
+
+    async def until(self, condition: Any, timeout: float = 60.0) -> None:
+        async with asyncio.timeout(timeout):
+            while not condition():  # noqa: ASYNC110 - the daemon's writer thread makes it so
+                await asyncio.sleep(0.1)
 
     async def finished(self, port: FramePort, timeout: float) -> list[Any]:
         messages = []
@@ -88,17 +102,16 @@ async def make_rig(tmp_path: Path) -> AsyncIterator[Any]:
 async def test_unplugged_sonde_during_a_cast(make_rig: Any) -> None:
     rig, port = await make_rig({"cast": {"bottom_dwell_s": 3.0}}, SondeModel())
     task = asyncio.create_task(rig.daemon.run())
-    await asyncio.wait_for(rig.daemon.ready.wait(), 5)
+    await asyncio.wait_for(rig.daemon.ready.wait(), 30)
     await port.send(station())
-    assert (await port.receive(1)).message == Ack(100)  # type: ignore[union-attr]
-    await asyncio.sleep(1.5)
+    assert (await port.receive(30)).message == Ack(100)  # type: ignore[union-attr]
+    await rig.until(lambda: "ok" in rig.statuses())  # read while the cast runs
     rig.sonde.unplug()
-    await asyncio.sleep(1.5)
+    await rig.until(lambda: rig.statuses().count("disconnected") >= 3)
     rig.sonde.replug()
-    messages = await rig.finished(port, 20)
-    await asyncio.sleep(0.5)
+    messages = await rig.finished(port, 60)
     rig.daemon.request_shutdown()
-    assert await asyncio.wait_for(task, 10) == EXIT_OK
+    assert await asyncio.wait_for(task, 30) == EXIT_OK
     assert isinstance(messages[-1], Finished)  # the cast went on and ended normally
     assert sum(isinstance(m, DepthReport) for m in messages) >= 5
     with JournalReader(rig.db) as reader:
@@ -118,12 +131,13 @@ async def test_unplugged_sonde_during_a_cast(make_rig: Any) -> None:
     assert all(r.values["temperature"] is not None for r in ok)
     assert {r.phase for r in rows} >= {"descending", "ascending"}
     assert events.count("sonde_port_opened") >= 2 and "sonde_port_lost" in events
-    # The beat: consecutive readings of the cast 0.25 s apart (missed beats skipped, no burst).
-    # A `late` row is a reply that came after its request's time-out, stamped with the
-    # time it was asked (issue 20): it sits beside that request's own row, off the beat.
+    # The beat: readings of the cast on a PERIOD_S beat, missed beats skipped, never a
+    # burst to catch up (a beat read late on a loaded machine may sit closer to the next:
+    # the count says whether beats were added). A `late` row is a reply that came after
+    # its request's time-out, stamped with the time it was asked (issue 20): it sits
+    # beside that request's own row, off the beat.
     beat = [r for r in rows if r.status != "late"]
-    gaps = [(b.mono_s - a.mono_s, a.status, b.status) for a, b in itertools.pairwise(beat)]
-    assert min(g for g, _, _ in gaps) > 0.2, [x for x in gaps if x[0] <= 0.2]
+    assert len(beat) <= (beat[-1].mono_s - beat[0].mono_s) / PERIOD_S + 1
 
 
 async def test_bottom_contact_stops_the_descent(make_rig: Any) -> None:
@@ -137,11 +151,11 @@ async def test_bottom_contact_stops_the_descent(make_rig: Any) -> None:
     }
     rig, port = await make_rig(config, model)
     task = asyncio.create_task(rig.daemon.run())
-    await asyncio.wait_for(rig.daemon.ready.wait(), 5)
+    await asyncio.wait_for(rig.daemon.ready.wait(), 30)
     await port.send(station(confidence=0))  # no sonar bottom: the sonde is the only guard
-    messages = await rig.finished(port, 30)
+    messages = await rig.finished(port, 90)
     rig.daemon.request_shutdown()
-    assert await asyncio.wait_for(task, 10) == EXIT_OK
+    assert await asyncio.wait_for(task, 30) == EXIT_OK
     assert isinstance(messages[-1], Finished)
     with JournalReader(rig.db) as reader:
         (cast,) = reader.casts()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import struct
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -41,11 +42,18 @@ class Fixed:
         return dict(self.values)
 
 
+TIMEOUT_S = 2.0
+
+
 def settings(path: Path, **kw: object) -> SondeSettings:
     base: dict[str, object] = {
         "backend": "modbus",
         "port": str(path),
-        "timeout_s": 0.2,
+        # Far above a reply's few milliseconds even on a loaded machine: a test that
+        # wants a time-out gets one from a sonde that does not answer.
+        "timeout_s": TIMEOUT_S,
+        "period_s": 4 * TIMEOUT_S,  # a request and its retries fit
+        "idle_period_s": 4 * TIMEOUT_S,
         "retries": 0,
         "reconnect_initial_s": 0.05,
         "reconnect_max_s": 0.2,
@@ -85,7 +93,7 @@ async def test_one_block_request_per_sample(sonde: SimulatedSonde) -> None:
         await reader.close()
     assert [r.requests for r in readings] == [1, 1, 1]
     assert sonde.requests == 3
-    assert all(0.0 < r.duration_s < 0.2 for r in readings)
+    assert all(0.0 < r.duration_s < TIMEOUT_S for r in readings)
 
 
 @pytest.mark.parametrize(
@@ -136,10 +144,9 @@ async def test_unplugged_adapter_is_reopened(sonde: SimulatedSonde) -> None:
         assert all(r.values == dict.fromkeys(KNOWN) for r in down)
         assert not reader.up and reader.losses == 1
         sonde.replug()
-        for _ in range(40):
-            reading = await reader.read()
-            if reading.status == OK:
-                break
+        deadline = time.monotonic() + 30  # reopened with backoff: reads until it is
+        while (reading := await reader.read()).status != OK:
+            assert time.monotonic() < deadline, reading
             await asyncio.sleep(0.05)
         assert reading.status == OK and reading.values == KNOWN
         assert reader.up and reader.opens == 2
@@ -152,7 +159,8 @@ async def test_a_port_that_is_not_there_is_retried_with_backoff(tmp_path: Path) 
     readings = [await reader.read() for _ in range(3)]
     assert [r.status for r in readings] == [DISCONNECTED] * 3
     assert readings[0].error and "nothing-here" in readings[0].error
-    assert all(r.duration_s < 0.1 for r in readings)  # a cast never waits for a missing sonde
+    # A cast never waits for a missing sonde: no read waits out its time-out.
+    assert all(r.duration_s < TIMEOUT_S for r in readings)
     await reader.close()
 
 
@@ -182,7 +190,7 @@ async def test_the_october_2025_map_by_protocol_address(tmp_path: Path) -> None:
         {"name": n, "address": a, "unit": "1", "long_name": n}
         for n, a in zip(names, addresses, strict=True)
     ]
-    s = settings(tmp_path / "ttySONDE", parameters=params, timeout_s=0.5, retries=1)
+    s = settings(tmp_path / "ttySONDE", parameters=params, retries=1)
 
     class Values:
         def read(self, line_out_m: float, t: float) -> dict[str, float]:

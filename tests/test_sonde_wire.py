@@ -7,6 +7,10 @@ with its own CRC code (not the project's) and answers as each test tells it:
 another function code, another slave, a wrong byte count, late, or with
 exception 2 for any register it does not map. Every register holds the index
 of the request it answers, so a value taken for the wrong request shows.
+
+Every time below is a multiple of `S`: the same scenario as at 0.1 s time-outs and
+0.4 s periods, stretched so that a loaded machine, which can keep this process off
+the CPU for tens of milliseconds, never turns a prompt reply into a late one.
 """
 
 from __future__ import annotations
@@ -37,6 +41,8 @@ from cc_daemon.drivers.sonde.reader import (
     SondeReader,
 )
 from cc_daemon.sim.pty import make_raw
+
+S = 4.0  # the scenarios' time scale: a time-out of 0.1 s becomes 0.1 * S
 
 
 def crc(frame: bytes) -> bytes:
@@ -106,7 +112,7 @@ def index_registers(req: Request) -> list[int]:
 
 
 def prompt(req: Request) -> tuple[float, bytes]:
-    return 0.005, registers_reply(req.slave, req.function, index_registers(req))
+    return 0.005 * S, registers_reply(req.slave, req.function, index_registers(req))
 
 
 @pytest.fixture
@@ -142,9 +148,9 @@ def settings(port: str, **kw: object) -> SondeSettings:
     base: dict[str, object] = {
         "backend": "modbus",
         "port": port,
-        "timeout_s": 0.1,
+        "timeout_s": 0.1 * S,
         "retries": 0,
-        "period_s": 0.4,
+        "period_s": 0.4 * S,
         "parameters": EVEN_MAP,
     }
     return SondeSettings.model_validate(base | kw)
@@ -181,8 +187,8 @@ async def test_a_valid_frame_that_is_not_the_answer_is_never_ok(
     status: str,
 ) -> None:
     port, start = line
-    start(lambda r: (0.005, make_reply(r)))
-    (reading,) = await read_n(SondeReader(settings(port, retries=1)), 1, 0.4)
+    start(lambda r: (0.005 * S, make_reply(r)))
+    (reading,) = await read_n(SondeReader(settings(port, retries=1)), 1, 0.4 * S)
     assert reading.status == status
     assert reading.values == dict.fromkeys(["depth", "temperature", "ph"])
     assert reading.requests == 1  # the sonde answered: asking again changes nothing
@@ -195,16 +201,16 @@ async def test_late_replies_are_never_taken_for_a_later_request(
     # Every reply comes 0.85 s late: two periods and more after its request
     # (the field's 2.1 s late replies at a 1 s period, scaled down).
     port, start = line
-    responder = start(lambda r: (0.85, prompt(r)[1]))
-    readings = await read_n(SondeReader(settings(port)), 8, 0.4)
+    responder = start(lambda r: (0.85 * S, prompt(r)[1]))
+    readings = await read_n(SondeReader(settings(port)), 8, 0.4 * S)
     assert not [r for r in readings if r.status == OK]
     late = [x for r in readings for x in r.late]
     assert late, "the late replies are kept, flagged"
     for x in late:
-        assert x.status == LATE and x.duration_s > 0.1
+        assert x.status == LATE and x.duration_s > 0.1 * S
         asked = responder.requests[int(x.values["depth"] or 0)]
-        # Stamped with the time it was asked for, not the time it came.
-        assert abs(x.mono_s - asked.at) < 0.05
+        # Stamped with the time it was asked for, not the time it came (0.85 * S later).
+        assert abs(x.mono_s - asked.at) < 0.1 * S
         assert x.values["temperature"] == x.values["depth"]
 
 
@@ -214,17 +220,17 @@ async def test_a_dropped_request_costs_one_reading_and_nothing_is_misattributed(
     port, start = line
     # The first request is lost on the line; its answer comes 0.5 s late, inside
     # the next request's window. Every other request is answered at once.
-    responder = start(lambda r: (0.5, prompt(r)[1]) if r.index == 0 else prompt(r))
-    readings = await read_n(SondeReader(settings(port)), 4, 0.4)
+    responder = start(lambda r: (0.5 * S, prompt(r)[1]) if r.index == 0 else prompt(r))
+    readings = await read_n(SondeReader(settings(port)), 4, 0.4 * S)
     assert readings[0].status == TIMEOUT
     assert [r.status for r in readings[1:]] == [OK, OK, OK]
     for r in readings[1:]:
         # Each value is from a request sent during its own reading.
         for value in r.values.values():
             assert value is not None
-            assert r.mono_s - 0.001 <= responder.requests[int(value)].at <= r.mono_s + 0.2
+            assert r.mono_s - 0.001 <= responder.requests[int(value)].at <= r.mono_s + 0.2 * S
     (late,) = [x for r in readings for x in r.late]
-    assert late.values["depth"] == 0.0 and abs(late.mono_s - readings[0].mono_s) < 0.05
+    assert late.values["depth"] == 0.0 and abs(late.mono_s - readings[0].mono_s) < 0.1 * S
     # While the first request was owed, the next was asked in other sizes than 22 registers.
     assert responder.requests[1].count != 22
 
@@ -237,11 +243,11 @@ async def test_exception_2_for_gaps_reads_mapped_blocks_by_itself(
 
     def answer(r: Request) -> tuple[float, bytes]:
         if not set(range(r.address, r.address + r.count)) <= mapped:
-            return 0.005, exception_reply(r.slave, r.function, 2)
+            return 0.005 * S, exception_reply(r.slave, r.function, 2)
         return prompt(r)
 
     responder = start(answer)
-    readings = await read_n(SondeReader(settings(port)), 2, 0.4)
+    readings = await read_n(SondeReader(settings(port)), 2, 0.4 * S)
     assert [r.status for r in readings] == [OK, OK]
     assert [(q.address, q.count) for q in responder.requests] == [
         (10, 22),  # the one block, refused
@@ -260,16 +266,16 @@ async def test_malacate_map_one_value_per_request(
 
     def answer(r: Request) -> tuple[float, bytes]:
         if r.address not in addresses or r.count != 2:
-            return 0.005, exception_reply(r.slave, r.function, 2)
-        return 0.005, registers_reply(r.slave, r.function, [0x4120, 0x0000])  # 10.0
+            return 0.005 * S, exception_reply(r.slave, r.function, 2)
+        return 0.005 * S, registers_reply(r.slave, r.function, [0x4120, 0x0000])  # 10.0
 
     start(answer)
     params = [
         {"name": f"v{i}", "address": a, "unit": "1", "long_name": "x"}
         for i, a in enumerate(addresses)
     ]
-    s = settings(port, parameters=params, depth_parameter="v0", period_s=1.0)
-    readings = await read_n(SondeReader(s), 2, 1.0)
+    s = settings(port, parameters=params, depth_parameter="v0", period_s=1.0 * S)
+    readings = await read_n(SondeReader(s), 2, 1.0 * S)
     assert [r.status for r in readings] == [OK, OK]
     assert readings[1].values == dict.fromkeys([f"v{i}" for i in range(8)], 10.0)
     assert readings[1].requests == 8
@@ -281,18 +287,18 @@ async def test_a_retry_that_cannot_fit_in_the_period_is_skipped(
     port, start = line
     responder = start(lambda r: None)  # a silent sonde
     # Malacate's 0.5 s wait with one retry at 1 s: the retry would end at the period.
-    s = settings(port, timeout_s=0.5, retries=1, period_s=1.0)
-    (reading,) = await read_n(SondeReader(s), 1, 1.0)
+    s = settings(port, timeout_s=0.5 * S, retries=1, period_s=1.0 * S)
+    (reading,) = await read_n(SondeReader(s), 1, 1.0 * S)
     assert reading.status == TIMEOUT and reading.requests == 1
-    assert reading.duration_s < 1.0
+    assert reading.duration_s < 1.0 * S
     assert len(responder.requests) == 1
 
 
 async def test_a_retry_that_fits_is_sent(line: tuple[str, Callable[..., Responder]]) -> None:
     port, start = line
     responder = start(lambda r: None if r.index == 0 else prompt(r))
-    s = settings(port, timeout_s=0.1, retries=1, period_s=0.4)
-    (reading,) = await read_n(SondeReader(s), 1, 0.4)
+    s = settings(port, timeout_s=0.1 * S, retries=1, period_s=0.4 * S)
+    (reading,) = await read_n(SondeReader(s), 1, 0.4 * S)
     # The retry is asked in two parts (the first request may still answer late).
     assert reading.status == OK and reading.requests == 3
     assert [q.count for q in responder.requests] == [22, 18, 4]
@@ -302,8 +308,8 @@ async def test_exception_other_than_2_is_not_split(
     line: tuple[str, Callable[..., Responder]],
 ) -> None:
     port, start = line
-    responder = start(lambda r: (0.005, exception_reply(r.slave, r.function, 4)))
-    (reading,) = await read_n(SondeReader(settings(port)), 1, 0.4)
+    responder = start(lambda r: (0.005 * S, exception_reply(r.slave, r.function, 4)))
+    (reading,) = await read_n(SondeReader(settings(port)), 1, 0.4 * S)
     assert reading.status == EXCEPTION and len(responder.requests) == 1
 
 
@@ -317,10 +323,12 @@ async def test_requests_that_cannot_end_within_the_period_are_not_sent(
         for b, n in enumerate((2, 3, 4))
         for i in range(n)
     ]
-    s = settings(port, parameters=params, depth_parameter="v00", timeout_s=0.4, period_s=1.0)
-    (reading,) = await read_n(SondeReader(s), 1, 1.0)
+    s = settings(
+        port, parameters=params, depth_parameter="v00", timeout_s=0.4 * S, period_s=1.0 * S
+    )
+    (reading,) = await read_n(SondeReader(s), 1, 1.0 * S)
     assert [q.count for q in responder.requests] == [4, 6]
-    assert reading.duration_s < 1.0
+    assert reading.duration_s < 1.0 * S
     assert list(reading.missing.values()) == [TIMEOUT] * 5 + [NO_TIME] * 4
 
 
@@ -332,8 +340,8 @@ async def test_a_silent_sonde_with_one_value_per_block_is_not_asked_ambiguously(
     params = [
         {"name": f"v{i}", "address": 200 * i, "unit": "1", "long_name": "x"} for i in range(4)
     ]
-    s = settings(port, parameters=params, depth_parameter="v0", timeout_s=0.1, period_s=1.0)
-    (reading,) = await read_n(SondeReader(s), 1, 1.0)
+    s = settings(port, parameters=params, depth_parameter="v0", timeout_s=0.1 * S, period_s=1.0 * S)
+    (reading,) = await read_n(SondeReader(s), 1, 1.0 * S)
     # v0 asked whole (2 registers), v1 in halves (the first half times out): after
     # that every size is owed a reply that may still come, so nothing is asked.
     assert [q.count for q in responder.requests] == [2, 1]
@@ -348,7 +356,7 @@ async def test_a_port_lost_in_the_middle_of_a_reading_ends_it_as_disconnected(
 
     def answer_then_unplug(r: Request) -> tuple[float, bytes]:
         asyncio.get_running_loop().remove_reader(master[0])
-        asyncio.get_running_loop().call_later(0.05, os.close, master[0])  # after the reply
+        asyncio.get_running_loop().call_later(0.05 * S, os.close, master[0])  # after the reply
         return prompt(r)
 
     responder = start(answer_then_unplug)
@@ -356,8 +364,8 @@ async def test_a_port_lost_in_the_middle_of_a_reading_ends_it_as_disconnected(
     params = [
         {"name": f"v{i}", "address": 200 * i, "unit": "1", "long_name": "x"} for i in range(3)
     ]
-    s = settings(port, parameters=params, depth_parameter="v0", timeout_s=0.1, period_s=1.0)
-    (reading,) = await read_n(SondeReader(s), 1, 1.0)
+    s = settings(port, parameters=params, depth_parameter="v0", timeout_s=0.1 * S, period_s=1.0 * S)
+    (reading,) = await read_n(SondeReader(s), 1, 1.0 * S)
     assert reading.values["v0"] == 0.0 and reading.status == DISCONNECTED
     assert reading.missing == {"v1": DISCONNECTED, "v2": DISCONNECTED}
 
@@ -378,7 +386,7 @@ async def test_the_duty_journals_late_replies_flagged_at_the_time_asked(
     from cc_daemon.store import Journal, JournalReader
 
     port, start = line
-    start(lambda r: (0.85, prompt(r)[1]))
+    start(lambda r: (0.85 * S, prompt(r)[1]))
     settings = Settings.model_validate(
         {"sonde": settings_dict(port), "store": {"path": str(tmp_path / "j.db")}}
     )
@@ -392,7 +400,7 @@ async def test_the_duty_journals_late_replies_flagged_at_the_time_asked(
     began = time.monotonic()
     try:
         for k in range(8):
-            await asyncio.sleep(max(0.0, began + 0.4 * k - time.monotonic()))
+            await asyncio.sleep(max(0.0, began + 0.4 * S * k - time.monotonic()))
             view.probe_depth_m = float(k)
             await duty.sample(view)
     finally:
@@ -407,7 +415,7 @@ async def test_the_duty_journals_late_replies_flagged_at_the_time_asked(
     for r in late:
         # The line out of the reading it was asked in, at or just after the reading's start.
         started = max(m for m in asked if m <= r.mono_s + 1e-6)
-        assert r.line_out_m == asked[started] and r.mono_s - started < 0.4
+        assert r.line_out_m == asked[started] and r.mono_s - started < 0.4 * S
     assert duty._latest_depth is None  # never used for R-M
 
 
@@ -415,9 +423,9 @@ def settings_dict(port: str) -> dict[str, object]:
     return {
         "backend": "modbus",
         "port": port,
-        "timeout_s": 0.1,
+        "timeout_s": 0.1 * S,
         "retries": 0,
-        "period_s": 0.4,
-        "idle_period_s": 1.0,
+        "period_s": 0.4 * S,
+        "idle_period_s": 1.0 * S,
         "parameters": EVEN_MAP,
     }
