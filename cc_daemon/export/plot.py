@@ -24,7 +24,7 @@ from typing import Any
 
 from cc_daemon.core.cast.bottom import distrust
 from cc_daemon.export.mapframe import LocalFrame, figure, metric_axes, place_labels
-from cc_daemon.store.reader import CastRecord, FixRecord, SampleRecord, iso_utc
+from cc_daemon.store.records import CastRecord, FixRecord, SampleRecord, iso_utc
 
 PHASE_COLOURS = {
     "soaking": "#8dd3c7",

@@ -21,7 +21,7 @@ from typing import Any
 
 from cc_daemon.export.mapframe import LocalFrame, figure, metric_axes, place_labels
 from cc_daemon.export.sonde import Column
-from cc_daemon.store.reader import CastRecord, iso_utc
+from cc_daemon.store.records import CastRecord, iso_utc
 from cc_daemon.store.sonde import SondeSampleRecord
 
 DPI = 120
