@@ -131,6 +131,11 @@ class Salvaged:
                 self._directory = scratch.make("salvage")
             return self._directory
 
+    @property
+    def directory(self) -> Path | None:
+        """Where its copies are (None until the first salvage, and after `close`)."""
+        return self._directory
+
     def room(self) -> int:
         """The bytes its copies take now."""
         with self._lock:
