@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import json
 import re
 import shutil
 import sqlite3
@@ -211,3 +212,31 @@ def test_deep_json_in_a_sonde_reading_and_its_map_is_one_line(tmp_path: Path) ->
         line = out.one_clear_line()
         assert "1 unreadable sonde samples skipped" in line
         assert "1 events with unreadable JSON" in line
+
+
+def test_text_under_the_cell_bound_is_drawn_short_in_a_plot(source: Path, tmp_path: Path) -> None:
+    # 900 kB: under the bound, but matplotlib laid a label that long out for minutes.
+    db = tmp_path / "survey.db"
+    shutil.copyfile(source, db)
+    huge_text(db, "samples", "phase", 900_000, "id = 20")
+    sql(db, "UPDATE casts SET outcome = '$\\frac{1}{2}$' || outcome WHERE id = 2")
+    sonde = tmp_path / "sonde.db"
+    sonde_journal(sonde)
+    name = "x" * 900_000
+    with contextlib.closing(sqlite3.connect(sonde, isolation_level=None)) as conn:
+        detail = json.loads(
+            conn.execute("SELECT detail_json FROM events WHERE kind = 'sonde_started'").fetchone()[
+                0
+            ]
+        )
+        detail["parameters"][1]["long_name"] = name
+        conn.execute(
+            "UPDATE events SET detail_json = ? WHERE kind = 'sonde_started'", (json.dumps(detail),)
+        )
+    cast, profiles = run_commands(
+        ["plot", "--db", str(db), "--cast", "2", "-o", str(tmp_path / "c.png")],
+        ["sonde", "plot", "--cast", "1", "--db", str(sonde), "-o", str(tmp_path / "p.png")],
+    )
+    assert (cast.code, profiles.code) == (0, 0), (cast.stderr, profiles.stderr)
+    assert (tmp_path / "c.png").stat().st_size > 0
+    assert (tmp_path / "p.png").stat().st_size > 0
