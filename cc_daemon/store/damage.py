@@ -1,11 +1,13 @@
 """Damaged journals: finding the damage, and saving every row that can be read.
 
-This module owns judging a journal file (SQLite's `quick_check`, and a check of
-the write-ahead log's frames, whose damage SQLite itself passes over in
-silence: it stops reading the log at the first bad frame) and salvaging one
-into a new journal: SQLite's own `.recover` through the `sqlite3` program where
-there is one, else row by row, in blocks of row ids, skipping what cannot be
-read. It never writes the damaged file nor anything beside it.
+This module owns judging a journal file (SQLite's `quick_check`; the log's
+frames are `store.walcheck`'s) and salvaging one into a new journal: SQLite's
+own `.recover` through the `sqlite3` program where there is one
+(`store.recover_shell`), else row by row, in blocks of row ids, skipping what
+cannot be read. Every statement on the damaged file is bounded
+(`store.guard`): by the salvage's time, by the size of a value, and never on a
+table that is not one (a view put in its place). It never writes the damaged
+file nor anything beside it, nor a new journal through a symlink.
 """
 
 from __future__ import annotations

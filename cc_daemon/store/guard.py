@@ -103,8 +103,9 @@ class Bounds:
         except sqlite3.OperationalError as exc:
             if (getattr(exc, "sqlite_errorcode", 0) & 0xFF) != _SQLITE_INTERRUPT:
                 raise
-            limit = self.seconds if self.until == math.inf else "its"
-            raise QueryTimeout(f"a query ran past {limit} s and was ended") from exc
+            if time.monotonic() > self.until:
+                raise QueryTimeout("a query ran past the deadline and was ended") from exc
+            raise QueryTimeout(f"a query ran past {self.seconds} s and was ended") from exc
         finally:
             self._statement = math.inf
 
@@ -112,22 +113,19 @@ class Bounds:
         with self.statement():
             return self.conn.execute(sql, params).fetchall()
 
-    def timed_out(self, exc: sqlite3.Error) -> bool:
-        """Whether `exc` is this connection's deadline (outside `statement`)."""
-        code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
-        return code == _SQLITE_INTERRUPT and time.monotonic() > self.until
-
 
 def _shape(bounds: Bounds, name: str, table: Table, db: str) -> str | None:
     """None if `db.name` is a real table with the journal's columns; else why not."""
     found = bounds.rows(
-        f"SELECT type, sql FROM {db}.sqlite_master WHERE name = ? COLLATE NOCASE", (name,)
+        f"SELECT type, sql FROM {db}.sqlite_master"
+        " WHERE name = ? COLLATE NOCASE AND type != 'trigger'",
+        (name,),
     )
     if not found:
         return "missing"
     kind, sql = found[0]
     if kind != "table":
-        return f"a {kind}, not a table"
+        return f"{'an' if str(kind)[:1] in 'aeiou' else 'a'} {kind}, not a table"
     if str(sql or "").lstrip().upper().startswith("CREATE VIRTUAL"):
         return "a virtual table"
     info = bounds.rows(f"PRAGMA {db}.table_xinfo({quoted(name)})")

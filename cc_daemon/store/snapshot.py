@@ -23,25 +23,17 @@ from pathlib import Path
 from cc_daemon.store import files, guard
 from cc_daemon.store.reader import DamagedJournalError, JournalReader, iso_utc
 from cc_daemon.store.schema import StoreError
-from cc_daemon.store.values import WALL_MAX_S, WALL_MIN_S
-
-
-def _dated(column: str) -> str:
-    return (
-        f"CASE WHEN typeof({column}) IN ('integer', 'real')"
-        f" AND {column} BETWEEN {WALL_MIN_S:.0f} AND {WALL_MAX_S:.0f} THEN {column} END"
-    )
-
+from cc_daemon.store.values import dated
 
 _TIMES = (("fixes", "wall_s"), ("samples", "wall_s"), ("events", "wall_s"))
 _SPAN_SQL = (
     "SELECT min(t), max(t) FROM ("
     + " UNION ALL ".join(
-        f"SELECT min({_dated(c)}) AS t FROM {table} UNION ALL SELECT max({_dated(c)}) FROM {table}"
+        f"SELECT min({dated(c)}) AS t FROM {table} UNION ALL SELECT max({dated(c)}) FROM {table}"
         for table, c in _TIMES
     )
-    + f" UNION ALL SELECT min({_dated('start_wall_s')}) FROM casts"
-    + f" UNION ALL SELECT max({_dated('end_wall_s')}) FROM casts)"
+    + f" UNION ALL SELECT min({dated('start_wall_s')}) FROM casts"
+    + f" UNION ALL SELECT max({dated('end_wall_s')}) FROM casts)"
 )
 
 

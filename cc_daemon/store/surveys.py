@@ -13,7 +13,7 @@ It never opens the file nor runs a query itself: `store.reader` runs `QUERY`
 
 from typing import Any, NamedTuple
 
-from cc_daemon.store.values import WALL_MAX_S, WALL_MIN_S, integer, wall_time
+from cc_daemon.store.values import dated, integer, wall_time
 
 ALL = "all"
 LATEST = "latest"
@@ -30,21 +30,13 @@ class SurveyRecord(NamedTuple):
     winch_backend: str | None
 
 
-def _dated(column: str) -> str:
-    """`column` where it holds a time a calendar can show, else NULL (so `max` skips it)."""
-    return (
-        f"CASE WHEN typeof({column}) IN ('integer', 'real')"
-        f" AND {column} BETWEEN {WALL_MIN_S:.0f} AND {WALL_MAX_S:.0f} THEN {column} END"
-    )
-
-
 QUERY = f"""
 SELECT s.id, s.opened_wall_s, s.simulated, s.winch_backend,
     (SELECT count(*) FROM casts c WHERE c.session_id = s.id),
     (SELECT count(*) FROM casts c WHERE c.session_id = s.id AND c.outcome = 'completed'),
     (SELECT count(*) FROM fixes f WHERE f.session_id = s.id),
-    (SELECT max({_dated("f.wall_s")}) FROM fixes f WHERE f.session_id = s.id),
-    (SELECT max({_dated("coalesce(c.end_wall_s, c.start_wall_s)")})
+    (SELECT max({dated("f.wall_s")}) FROM fixes f WHERE f.session_id = s.id),
+    (SELECT max({dated("coalesce(c.end_wall_s, c.start_wall_s)")})
         FROM casts c WHERE c.session_id = s.id)
 FROM sessions s ORDER BY s.id
 """

@@ -8,7 +8,8 @@ stored value and returns it as the type the records promise, or raises
 `ValueError` naming what is wrong, so the reader skips (and counts) the row or
 marks the value unreadable: a value that cannot be true is never shown as good.
 
-Pure: values in, values out; no SQLite, no file.
+Pure: values in, values out; no connection, no file. (`dated` is the same rule
+for a time, spelt in SQL, for the aggregates a query computes itself.)
 """
 
 from __future__ import annotations
@@ -40,6 +41,15 @@ def wall_time(value: Any, what: str = "a time") -> float:
     if not WALL_MIN_S <= result <= WALL_MAX_S:
         raise ValueError(f"{what} {result:g} s is no date")
     return result
+
+
+def dated(column: str) -> str:
+    """SQL: `column` where it holds a time a calendar can show, else NULL (so that `min`
+    and `max` pass over the rest)."""
+    return (
+        f"CASE WHEN typeof({column}) IN ('integer', 'real')"
+        f" AND {column} BETWEEN {WALL_MIN_S:.0f} AND {WALL_MAX_S:.0f} THEN {column} END"
+    )
 
 
 def optional_wall_time(value: Any, what: str = "a time") -> float | None:

@@ -27,6 +27,7 @@ WAL_MAGIC_BE = 0x377F0683
 _WAL_HEADER = 32
 _FRAME_HEADER = 24
 _ATTEMPTS = 3  # a live log the daemon restarts while we read is read again, this often
+_REMEMBERED = 32  # logs whose progress is kept (a process reads one journal, or a few)
 
 
 def _checksum(data: bytes, s0: int, s1: int, big_endian: bool) -> tuple[int, int]:
@@ -133,6 +134,9 @@ class WalCheck:
         if at is None or (at.identity, at.header) != (identity, header) or at.size > st.st_size:
             s0, s1 = _checksum(header[:24], 0, 0, magic == WAL_MAGIC_BE)
             at = _Progress(identity, header, _WAL_HEADER, 0, s0, s1)
+            self._seen.pop(name, None)
+            while len(self._seen) >= _REMEMBERED:
+                del self._seen[next(iter(self._seen))]  # the oldest
             self._seen[name] = at
         _scan(log, st.st_size, at)
         if at.bad is not None and at.after_bad:
