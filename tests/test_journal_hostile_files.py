@@ -94,3 +94,27 @@ def test_a_fifo_where_sqlite_looks_beside_a_live_journal_is_never_opened(
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("survey")) == sorted(
         ["survey.db", "survey.db-wal", f"survey.db{companion}"]
     )
+
+
+@pytest.mark.parametrize(
+    ("make", "said"),
+    [
+        (os.mkfifo, "is a FIFO, not a journal file"),
+        (lambda db: os.symlink("/dev/zero", db), "is a character device, not a journal file"),
+        (os.mkdir, "is a directory, not a journal file"),
+    ],
+    ids=["fifo", "dev-zero", "directory"],
+)
+def test_a_journal_that_is_no_file_is_never_opened(
+    make: Callable[[Path], None], said: str, tmp_path: Path
+) -> None:
+    db = tmp_path / "survey.db"
+    make(db)
+    answers = run_commands(
+        ["casts", "--db", str(db)],
+        ["snapshot", str(tmp_path / "copy.db"), "--db", str(db)],
+        ["recover", "--db", str(db), "-o", str(tmp_path / "new.db")],
+    )
+    for answer in answers:
+        assert f"survey.db {said}" in answer.one_clear_line()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["survey.db"]

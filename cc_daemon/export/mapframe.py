@@ -25,7 +25,7 @@ _OFFSETS = [(6, 4), (6, -12), (-6, 4), (-6, -12), (0, 10), (0, -16), (12, -4), (
 _FARTHER = [(dx * 2, dy * 2) for dx, dy in _OFFSETS]
 
 
-LABEL_CHARS = 40  # the longest word the journal itself writes in a label is 16 characters
+LABEL_CHARS = 80  # the shipped sonde map's longest name is 43: "phycocyanin (blue-green ...)"
 
 
 def shown(text: object, limit: int = LABEL_CHARS) -> str:
