@@ -140,3 +140,74 @@ DAMAGE: dict[str, Callable[[Path], None]] = {
     "garbled-page": lambda db: garble_page(db, 5),
     "truncated": lambda db: truncate(db, 0.6),
 }
+
+
+# ------------------------------------------------------------ hostile journals
+# A journal copied from someone else (scp, a USB stick): real files made hostile
+# as an attacker would, read by every data command (tests/test_journal_hostile*.py).
+
+RECURSIVE_VIEW = (
+    "WITH RECURSIVE r(n) AS (SELECT 1 UNION ALL SELECT n + 1 FROM r) SELECT {columns} FROM r"
+)
+
+
+def view_in_place_of(db: Path, table: str, body: str) -> None:
+    """Rename `table` away and put a view of the same name and columns in its place;
+    `body` is the view's SELECT, `{columns}` standing for the table's columns (each
+    given the value `n`, the recursion's counter, or NULL for text)."""
+    with contextlib.closing(sqlite3.connect(db, isolation_level=None)) as conn:
+        info = conn.execute(f"PRAGMA table_info({table})").fetchall()
+        columns = ", ".join(f"{'NULL' if row[2] == 'TEXT' else 'n'} AS {row[1]}" for row in info)
+        conn.execute(f"ALTER TABLE {table} RENAME TO {table}_real")
+        conn.execute(f"CREATE VIEW {table} AS {body.format(columns=columns, table=table)}")
+
+
+def endless_view(db: Path, table: str) -> None:
+    """`table` replaced by a view that never ends (a recursive CTE without a limit)."""
+    view_in_place_of(db, table, RECURSIVE_VIEW)
+
+
+def self_join_view(db: Path, table: str, ways: int = 12) -> None:
+    """`table` replaced by a `ways`-way self-join of its rows: rows ** ways rows."""
+    with contextlib.closing(sqlite3.connect(db, isolation_level=None)) as conn:
+        names = [row[1] for row in conn.execute(f"PRAGMA table_info({table})")]
+        conn.execute(f"ALTER TABLE {table} RENAME TO {table}_real")
+        picked = ", ".join(f"t0.{name} AS {name}" for name in names)
+        joined = ", ".join(f"{table}_real t{i}" for i in range(ways))
+        conn.execute(f"CREATE VIEW {table} AS SELECT {picked} FROM {joined}")
+
+
+def huge_text(db: Path, table: str, column: str, size: int, where: str = "id = 1") -> None:
+    """One cell of `size` characters (built by SQLite, never in this process's memory)."""
+    sql(
+        db,
+        f"UPDATE {table} SET {column} = substr(hex(zeroblob({(size + 1) // 2})), 1, {size})"
+        f" WHERE {where}",
+    )
+
+
+def deep_json(depth: int) -> str:
+    return "[" * depth + "]" * depth
+
+
+HOSTILE_VALUES: dict[str, Callable[[Path], None]] = {
+    "no-fixes-table": lambda db: sql(db, "DROP TABLE fixes"),
+    "deep-json": lambda db: sql(
+        db,
+        f"UPDATE events SET detail_json = '{deep_json(50_000)}' WHERE id = 1",
+        f"UPDATE casts SET plan_json = '{deep_json(50_000)}' WHERE id = 2",
+    ),
+    "text-in-times": lambda db: sql(
+        db,
+        "UPDATE sessions SET opened_wall_s = 'yesterday'",
+        "UPDATE fixes SET wall_s = 'noon' WHERE id % 5 = 0",
+        "UPDATE samples SET wall_s = x'00ff' WHERE id % 7 = 0",
+    ),
+    "times-of-1e308": lambda db: sql(
+        db,
+        "UPDATE fixes SET wall_s = 1e308 WHERE id % 3 = 0",
+        "UPDATE casts SET end_wall_s = 1e308 WHERE id = 2",
+        "UPDATE events SET wall_s = -1e308 WHERE id = 1",
+        "UPDATE samples SET wall_s = 1e308 WHERE id % 11 = 0",
+    ),
+}

@@ -32,7 +32,16 @@ _NEVER = {
     "rich and pygments with a JSON log": ("rich", "pygments"),
     "ssl (the daemon opens no TLS connection)": ("ssl", "_ssl"),
     "pydantic's plugin search": ("pydantic.plugin._loader", "importlib.metadata"),
-    "the journal's read side": ("cc_daemon.store.reader",),
+    "the journal's read side": (
+        "cc_daemon.store.reader",
+        "cc_daemon.store.records",
+        "cc_daemon.store.guard",
+        "cc_daemon.store.files",
+        "cc_daemon.store.walcheck",
+        "cc_daemon.store.damage",
+        "cc_daemon.store.salvaged",
+        "cc_daemon.store.scratch",
+    ),
     "the sonde's modules with no sonde": ("cc_daemon.drivers.sonde",),
 }
 

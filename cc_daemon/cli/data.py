@@ -29,7 +29,7 @@ from cc_daemon.core.cast.bottom import MAX_CONFIDENCE_PCT, MAX_SOUNDING_MM
 from cc_daemon.core.errors import ConfigError
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import JournalReader, StoreError, default_store_path
-from cc_daemon.store.reader import CastRecord, iso_utc, parse_time
+from cc_daemon.store.records import CastRecord, iso_utc, parse_time
 from cc_daemon.store.surveys import LATEST
 
 Handler = Callable[[argparse.Namespace], int]

@@ -3,9 +3,12 @@
 This module owns the command's surface: its arguments, the report of what was
 saved and what was lost, and its exit status (0 every row the damaged file
 still counts was saved and no damage was found; 1 something was or may have
-been lost, or nothing could be read; 2 wrong arguments). The salvage itself is
+been lost, or nothing could be read; 2 wrong arguments, or NEW or one of its
+companions exists, a dangling symlink included). The salvage itself is
 `store.damage.salvage` (SQLite's own `.recover` where the sqlite3 program can,
-else row by row). It never writes the damaged file nor anything beside it.
+else row by row; tables that are views are never run, every statement ends by
+the salvage's time bound). It never writes the damaged file nor anything
+beside it.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from cc_daemon.store import damage
+from cc_daemon.store import damage, files
 from cc_daemon.store.schema import StoreError
 
 
@@ -47,11 +50,16 @@ def _say(text: str) -> None:
 def run(args: argparse.Namespace) -> int:
     src: Path = args.db
     dest: Path = args.output
-    if not src.is_file():
-        print(f"cc-daemon recover: no journal at {src}", file=sys.stderr)
+    try:
+        files.inspect(src)
+    except StoreError as exc:
+        print(f"cc-daemon recover: {exc}", file=sys.stderr)
         return 1
-    if dest.exists() or Path(f"{dest}-wal").exists():
-        print(f"cc-daemon recover: {dest} exists: refusing to overwrite it", file=sys.stderr)
+    try:
+        # A dangling symlink too: SQLite would follow it and write at its target.
+        damage.refuse_existing(dest)
+    except StoreError as exc:
+        print(f"cc-daemon recover: {exc}", file=sys.stderr)
         return 2
     wal = damage.wal_damage(src)
     try:

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from cc_daemon.store import JournalReader
-from cc_daemon.store.reader import iso_utc
+from cc_daemon.store.records import iso_utc
 from cc_daemon.store.surveys import ALL, LATEST, SurveyRecord, parse_survey
 
 SURVEY_HELP = "which survey (a daemon run): its number, 'all' or 'latest' (default: latest)"

@@ -9,16 +9,23 @@ the journal and never reorders or filters what it is given.
 Every time column comes with `clock_synced` (0: the Pi's clock had not been
 synchronised, so the UTC time may be wrong) and `monotonic_s`, which is exact
 within one boot and lets the data be re-timed later.
+
+Every CSV the project writes goes through `writer`, which neutralises formulas
+(OWASP's rule against CSV injection): a text cell that starts with `=`, `+`,
+`-`, `@`, a tab or a carriage return, and is not a plain number, gets a `'` in
+front, so a spreadsheet shows `=HYPERLINK(...)` from a stranger's journal as
+text instead of running it. Numbers (`-3.7233962`) stay numbers.
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import re
 from collections.abc import Iterable
-from typing import TextIO
+from typing import Any, Protocol, TextIO
 
-from cc_daemon.store.reader import EventRecord, FixRecord, SampleRecord, iso_utc
+from cc_daemon.store.records import EventRecord, FixRecord, SampleRecord, iso_utc
 from cc_daemon.store.sonar import SonarReadingRecord
 
 SAMPLE_COLUMNS = (
@@ -50,6 +57,41 @@ SONAR_COLUMNS = (
 )  # fmt: skip
 
 
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+_NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?\Z")
+
+
+def neutral(cell: Any) -> Any:
+    """`cell` as a spreadsheet may safely open it: a text that would start a formula gets
+    a `'` in front; numbers (and text that is a plain number) are left as they are."""
+    if isinstance(cell, str) and cell.startswith(_FORMULA_START) and not _NUMBER.match(cell):
+        return "'" + cell
+    return cell
+
+
+class RowWriter(Protocol):
+    def writerow(self, row: Iterable[Any]) -> Any: ...
+
+
+class _Neutralising:
+    def __init__(self, out: TextIO) -> None:
+        self._writer = csv.writer(out)
+
+    def writerow(self, row: Iterable[Any]) -> Any:
+        return self._writer.writerow([neutral(cell) for cell in row])
+
+
+def writer(out: TextIO) -> RowWriter:
+    """A `csv.writer` (RFC 4180 quoting) whose every cell goes through `neutral`."""
+    return _Neutralising(out)
+
+
+def comment(text: str) -> str:
+    """A `#` comment line's text, on one line whatever the journal held (no row can
+    be slipped in after it)."""
+    return "".join(c if c.isprintable() else " " for c in text)
+
+
 def _deg(value: float | None) -> str:
     return "" if value is None else f"{value:.7f}"
 
@@ -60,12 +102,12 @@ def write_samples(
     """One row per depth sample; returns the number of rows written. `provenance`
     (the winch and whether it was simulated) goes first, as a `#` comment line."""
     if provenance is not None:
-        out.write(provenance + "\r\n")
-    writer = csv.writer(out)
-    writer.writerow(SAMPLE_COLUMNS)
+        out.write(comment(provenance) + "\r\n")
+    rows = writer(out)
+    rows.writerow(SAMPLE_COLUMNS)
     count = 0
     for s in samples:
-        writer.writerow(
+        rows.writerow(
             (
                 s.cast_id,
                 iso_utc(s.wall_s),
@@ -83,11 +125,11 @@ def write_samples(
 
 def write_fixes(fixes: Iterable[FixRecord], out: TextIO) -> int:
     """One row per telemetry fix (`P-T`) or start-measuring frame (`P-M`)."""
-    writer = csv.writer(out)
-    writer.writerow(FIX_COLUMNS)
+    rows = writer(out)
+    rows.writerow(FIX_COLUMNS)
     count = 0
     for f in fixes:
-        writer.writerow(
+        rows.writerow(
             (
                 iso_utc(f.wall_s),
                 _deg(f.lat_deg),
@@ -108,11 +150,11 @@ def write_fixes(fixes: Iterable[FixRecord], out: TextIO) -> int:
 
 def write_events(events: Iterable[EventRecord], out: TextIO) -> int:
     """One row per link or fault event; `detail` is a JSON object."""
-    writer = csv.writer(out)
-    writer.writerow(EVENT_COLUMNS)
+    rows = writer(out)
+    rows.writerow(EVENT_COLUMNS)
     count = 0
     for e in events:
-        writer.writerow(
+        rows.writerow(
             (
                 iso_utc(e.wall_s),
                 e.kind,
@@ -131,11 +173,11 @@ def write_sonar(readings: Iterable[SonarReadingRecord], out: TextIO) -> int:
     `valid` is 0 for a reading that cannot be true (confidence above 100, a
     distance of 1 km or more): its values are written as they came, never mended.
     """
-    writer = csv.writer(out)
-    writer.writerow(SONAR_COLUMNS)
+    rows = writer(out)
+    rows.writerow(SONAR_COLUMNS)
     count = 0
     for r in readings:
-        writer.writerow(
+        rows.writerow(
             (
                 iso_utc(r.wall_s),
                 r.port,

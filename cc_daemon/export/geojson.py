@@ -24,7 +24,7 @@ import json
 from collections.abc import Sequence
 from typing import Any, TextIO
 
-from cc_daemon.store.reader import CastRecord, FixRecord, iso_utc
+from cc_daemon.store.records import CastRecord, FixRecord, iso_utc
 
 
 def _position(lon: float, lat: float) -> list[float]:

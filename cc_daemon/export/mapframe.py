@@ -1,11 +1,13 @@
 """The frame every map of the survey is drawn in, and where its labels go.
 
-It owns three things the survey map and the sonde's map share: a matplotlib
-figure (imported only when drawing; a missing one raises
-`OptionalDependencyError`), a local metric frame (metres east and north of the
-survey's south-west corner, equal aspect: a metre is a metre both ways, which
-degrees are not), and the placement of point labels so that no label covers
-another label, a tick label or the axes' titles, and none is clipped.
+It owns what every plot shares: a matplotlib figure (imported only when
+drawing; a missing one raises `OptionalDependencyError`), a local metric frame
+(metres east and north of the survey's south-west corner, equal aspect: a metre
+is a metre both ways, which degrees are not), the placement of point labels so
+that no label covers another label, a tick label or the axes' titles, and none
+is clipped, and `shown`: text from the journal as a plot may draw it (a
+stranger's journal may hold a phase of a megabyte, which matplotlib would lay
+out for minutes and gigabytes, or `$...$`, which it would parse as mathematics).
 """
 
 from __future__ import annotations
@@ -21,6 +23,18 @@ EARTH_RADIUS_M = 6_371_008.8  # the mean radius (IUGG): metres per radian
 # Where a label may sit around its point, in points, tried in this order.
 _OFFSETS = [(6, 4), (6, -12), (-6, 4), (-6, -12), (0, 10), (0, -16), (12, -4), (-12, -4)]
 _FARTHER = [(dx * 2, dy * 2) for dx, dy in _OFFSETS]
+
+
+LABEL_CHARS = 80  # the shipped sonde map's longest name is 43: "phycocyanin (blue-green ...)"
+
+
+def shown(text: object, limit: int = LABEL_CHARS) -> str:
+    """Text from the journal as a label: printable, at most `limit` characters (an
+    ellipsis where it was cut), every `$` drawn as a dollar, not as mathematics."""
+    plain = "".join(c if c.isprintable() else " " for c in str(text)[: limit + 1])
+    if len(plain) > limit:
+        plain = plain[: limit - 1] + "\u2026"
+    return plain.replace("$", r"\$")
 
 
 def figure(width_in: float, height_in: float) -> Any:

@@ -32,7 +32,7 @@ from typing import Any
 from cc_daemon import __version__
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.export.provenance import of_casts
-from cc_daemon.store.reader import CastRecord, SampleRecord
+from cc_daemon.store.records import CastRecord, SampleRecord
 from cc_daemon.store.sonar import SonarReadingRecord
 
 TIME_UNITS = "seconds since 1970-01-01 00:00:00 UTC"

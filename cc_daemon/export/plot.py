@@ -23,8 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from cc_daemon.core.cast.bottom import distrust
-from cc_daemon.export.mapframe import LocalFrame, figure, metric_axes, place_labels
-from cc_daemon.store.reader import CastRecord, FixRecord, SampleRecord, iso_utc
+from cc_daemon.export.mapframe import LocalFrame, figure, metric_axes, place_labels, shown
+from cc_daemon.store.records import CastRecord, FixRecord, SampleRecord, iso_utc
 
 PHASE_COLOURS = {
     "soaking": "#8dd3c7",
@@ -101,7 +101,7 @@ def cast_figure(cast: CastRecord, samples: Sequence[SampleRecord]) -> Any:
         ax.axvspan(start, end, color=PHASE_COLOURS.get(phase, "#d9d9d9"), alpha=0.5, lw=0)
         seen.setdefault(phase)
     handles: list[Any] = [
-        Patch(color=PHASE_COLOURS.get(p, "#d9d9d9"), alpha=0.5, label=p) for p in seen
+        Patch(color=PHASE_COLOURS.get(p, "#d9d9d9"), alpha=0.5, label=shown(p)) for p in seen
     ]
     (line,) = ax.plot(times, depths, color="black", marker=".", lw=1.2, label="probe depth")
     handles.insert(0, line)
@@ -125,7 +125,8 @@ def cast_figure(cast: CastRecord, samples: Sequence[SampleRecord]) -> Any:
     ax.set_ylabel("depth (m)")
     clock = "" if cast.start_clock_synced else " (clock not synchronised)"
     ax.set_title(
-        f"Cast {cast.id} · {cast.outcome or 'running'} · reached {_metres(cast.reached_depth_m)}"
+        f"Cast {cast.id} · {shown(cast.outcome or 'running')} · reached"
+        f" {_metres(cast.reached_depth_m)}"
         f"\n{_when(cast.start_wall_s)}{clock}"
     )
     ax.grid(True, alpha=0.3)

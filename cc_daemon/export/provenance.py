@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import NamedTuple
 
-from cc_daemon.store.reader import CastRecord
+from cc_daemon.store.records import CastRecord
 
 UNKNOWN = "unknown"  # journals written before the winch was recorded (schema < 3)
 

@@ -6,7 +6,8 @@ This module owns
   data), else the default map, plus any name found in the readings;
 - the sample CSV: one row per reading, one column per parameter with its unit
   in the header (`temperature [degC]`), a missing value an empty cell (its
-  reason in `missing`), never a zero;
+  reason in `missing`), never a zero; its cells neutralised against formulas
+  as every CSV's (`export.csv.writer`);
 - the station GeoJSON: one Point per cast with the values near the surface
   and at the bottom of its profile.
 It never reads the journal itself (the caller hands it records).
@@ -14,14 +15,14 @@ It never reads the journal itself (the caller hands it records).
 
 from __future__ import annotations
 
-import csv
 import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, TextIO
 
 from cc_daemon.config.sonde import DEFAULT_PARAMETERS
-from cc_daemon.store.reader import CastRecord, EventRecord, iso_utc
+from cc_daemon.export.csv import writer as csv_writer
+from cc_daemon.store.records import CastRecord, EventRecord, iso_utc
 from cc_daemon.store.sonde import SondeSampleRecord
 
 # A reading this shallow or shallower (sonde depth, metres) counts as "surface".
@@ -93,7 +94,7 @@ def write_csv(
 ) -> int:
     """One row per reading; returns the number of rows written."""
     where = {c.id: (c.lat_deg, c.lon_deg) for c in casts}
-    writer = csv.writer(out)
+    writer = csv_writer(out)
     writer.writerow((*FIXED_COLUMNS, *(header(c) for c in columns), *TRAILING_COLUMNS))
     count = 0
     for s in samples:

@@ -25,7 +25,7 @@ from cc_daemon import __version__
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.export.netcdf import TIME_UNITS, profile_file
 from cc_daemon.export.sonde import Column
-from cc_daemon.store.reader import CastRecord
+from cc_daemon.store.records import CastRecord
 from cc_daemon.store.sonde import SondeSampleRecord
 
 PHASE_FLAGS = ("soaking", "descending", "dwelling", "ascending", "aborting", "stranded")

@@ -19,9 +19,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from cc_daemon.export.mapframe import LocalFrame, figure, metric_axes, place_labels
+from cc_daemon.export.mapframe import LocalFrame, figure, metric_axes, place_labels, shown
 from cc_daemon.export.sonde import Column
-from cc_daemon.store.reader import CastRecord, iso_utc
+from cc_daemon.store.records import CastRecord, iso_utc
 from cc_daemon.store.sonde import SondeSampleRecord
 
 DPI = 120
@@ -76,9 +76,9 @@ def plot_profiles(
                 lw=0.8 if phase else 0,
                 label=style["label"],
             )
-        unit = f" [{column.unit}]" if column.unit else ""
-        ax.set_xlabel(f"{column.long_name}{unit}", fontsize=8)
-        ax.set_title(column.name, fontsize=9)
+        unit = f" [{shown(column.unit)}]" if column.unit else ""
+        ax.set_xlabel(f"{shown(column.long_name)}{unit}", fontsize=8)
+        ax.set_title(shown(column.name), fontsize=9)
         ax.grid(True, alpha=0.3)
         if index % ncols == 0:
             ax.set_ylabel("depth [m]")
@@ -103,7 +103,8 @@ def _column(columns: Sequence[Column], name: str) -> Column:
 
 
 def _label(column: Column) -> str:
-    return f"{column.long_name} [{column.unit}]" if column.unit else column.long_name
+    name = shown(column.long_name)
+    return f"{name} [{shown(column.unit)}]" if column.unit else name
 
 
 def value_near(
@@ -177,7 +178,7 @@ def map_figure(
         ax.legend(fontsize=8)
     metric_axes(ax, frame)
     simulated = " - SIMULATED" if any(s.simulated for s in samples) else ""
-    ax.set_title(f"{column.name} at {depth_m:g} m (within {within_m:g} m){simulated}")
+    ax.set_title(f"{shown(column.name)} at {depth_m:g} m (within {within_m:g} m){simulated}")
     ax.grid(True, alpha=0.3)
     sx, sy = frame.xy([c.lat_deg for c in stations], [c.lon_deg for c in stations])
     place_labels(fig, ax, list(zip(sx, sy, strict=True)), [str(c.id) for c in stations], fontsize=7)
@@ -233,6 +234,6 @@ def plot_section(
     ax.set_xlabel("distance along the survey [m] (stations numbered by cast)")
     ax.set_ylabel("depth [m]")
     simulated = " - SIMULATED" if any(s.simulated for s in samples) else ""
-    ax.set_title(f"{column.name} along the survey, way down{simulated}", pad=14)
+    ax.set_title(f"{shown(column.name)} along the survey, way down{simulated}", pad=14)
     fig.savefig(str(path), dpi=DPI)
     return len(points)

@@ -22,11 +22,11 @@ from cc_daemon.store.journal import (
 from cc_daemon.store.schema import SCHEMA_VERSION, StoreError
 
 if TYPE_CHECKING:
-    from cc_daemon.store.reader import (
+    from cc_daemon.store.reader import JournalReader
+    from cc_daemon.store.records import (
         CastRecord,
         EventRecord,
         FixRecord,
-        JournalReader,
         SampleRecord,
     )
 

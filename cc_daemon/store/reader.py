@@ -1,12 +1,12 @@
-"""The journal's read side: casts, samples, fixes and events as records in SI units.
+"""The journal's read side: one consistent, bounded view of a journal file.
 
-This module owns opening a journal file for the `casts`, `export` and `plot`
-commands and the queries that turn its rows into records in degrees, metres
-and seconds. It must never write to the file: it opens it read-only (SQLite
-`mode=ro`), so it can run beside the daemon (WAL lets one writer and readers
-work at once) and never marks a running cast `unfinished` (only the daemon's
-`Journal.open()` may decide that a cast was left by a crash). A file from an
-older cc-daemon is migrated in a private in-memory copy, never in place.
+This module owns opening a journal file for the data commands and the field
+page, and the queries that give its rows back as records (`store.records`). It
+must never write to the file: it opens it read-only (SQLite `mode=ro`), so it
+can run beside the daemon (WAL lets one writer and readers work at once) and
+never marks a running cast `unfinished` (only the daemon's `Journal.open()` may
+decide that a cast was left by a crash). A file from an older cc-daemon is
+migrated in a private copy, never in place.
 
 A journal with no write-ahead log beside it is one nobody has open (SQLite
 removes `-wal` and `-shm` with the last connection): the reader opens it
@@ -15,34 +15,56 @@ data command leaves no `-wal`/`-shm` behind and needs no write access to the
 directory. That is safe because a daemon that starts meanwhile writes to its
 new log, not to the file, until a checkpoint (4 MB of log, or its close). With
 a log present (the daemon running, or killed) the reader opens it `mode=ro`,
-using the `-shm` that is there; if it cannot (a directory it may not write),
-it reads a private copy of the file and its log in a temporary directory.
+using the `-shm` that is there; if it cannot (a directory it may not write, or
+a `-shm`/`-journal` that is not a file), it reads a private copy of the file
+and its log in a temporary directory.
+
+The file may come from anyone: its files are judged before SQLite opens them
+(`store.files`: a log that is a FIFO or a device is not read), every statement
+is bounded in time and every value in size, and every table must be a real
+table of the journal's shape (`store.guard`). A damaged file (SQLite's check,
+the log's frames) is read from a salvaged copy; both are done once per change
+of the file (`store.salvaged`). What could not be read is said in one line
+when the reader closes (`damage_report`).
 
 All the reads of one `JournalReader` see one snapshot of the file, so a cast
 and its samples agree even while the daemon is writing.
 """
 
-import json
+from __future__ import annotations
+
 import os
-import shutil
 import sqlite3
-import tempfile
 from collections.abc import Callable
-from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, Self, TypeVar
+from typing import Any, Self, TypeVar
 
-from cc_daemon.store import schema, sonar, sonde
+from cc_daemon.store import damage, files, guard, records, schema, scratch, sonar, sonde, surveys
+from cc_daemon.store.damage import Salvage
+from cc_daemon.store.records import (
+    CastRecord,
+    EventRecord,
+    FixRecord,
+    SampleRecord,
+    iso_utc,
+    parse_time,
+)
+from cc_daemon.store.salvaged import Salvaged, shared
 from cc_daemon.store.schema import StoreError
-from cc_daemon.store.surveys import SurveyRecord, choose_survey, list_surveys
+from cc_daemon.store.surveys import SurveyRecord, choose_survey
 
-if TYPE_CHECKING:
-    from cc_daemon.store.damage import Salvage
+__all__ = [
+    "CastRecord",
+    "DamagedJournalError",
+    "EventRecord",
+    "FixRecord",
+    "JournalReader",
+    "SampleRecord",
+    "iso_utc",
+    "parse_time",
+]
 
 R = TypeVar("R")
-
-
-_UNREADABLE_JSON = frozenset({"unreadable_detail", "unreadable_plan"})
 
 
 class DamagedJournalError(StoreError):
@@ -55,217 +77,37 @@ _SQLITE_CANTOPEN = 14
 # Copying a file the daemon checkpoints at that moment can give a mismatched
 # pair (file, log): copy again, this many times at most.
 _COPY_ATTEMPTS = 5
-
-
-class CastRecord(NamedTuple):
-    id: int
-    session_id: int | None
-    start_mono_s: float
-    start_wall_s: float
-    start_clock_synced: bool
-    ap_timestamp_s: int
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-    water_depth_m: float  # the sonar distance in the cast's `M` frame
-    sonar_confidence_pct: int
-    planned_depth_m: float
-    mode: str
-    plan: dict[str, Any]
-    end_mono_s: float | None
-    end_wall_s: float | None
-    outcome: str | None  # None while the cast runs (or until the daemon reopens the file)
-    reached_depth_m: float | None
-    reason: str | None
-    samples: int
-    winch_backend: str | None = None  # "sim", "gpio", "gpio-mock"; None: not recorded
-    simulated: bool | None = None  # True: no probe moved (a simulated winch)
-
-
-class SampleRecord(NamedTuple):
-    cast_id: int
-    mono_s: float
-    wall_s: float
-    clock_synced: bool
-    depth_m: float
-    phase: str
-    lat_deg: float | None  # the station's position: the boat holds it during the cast
-    lon_deg: float | None
-
-
-class FixRecord(NamedTuple):
-    session_id: int | None
-    mono_s: float
-    wall_s: float
-    clock_synced: bool
-    frame: str
-    ap_timestamp_s: int
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-    sonar_distance_m: float
-    sonar_confidence_pct: int
-    # The autopilot's clock, decoded in the byte order its session settled on (the
-    # first frames re-decoded once the order was learnt); None before journal v6.
-    ap_time_s: int | None = None
-    ap_time_order: str | None = None
-
-
-class EventRecord(NamedTuple):
-    session_id: int | None
-    mono_s: float
-    wall_s: float
-    clock_synced: bool
-    kind: str
-    detail: dict[str, Any]
-
-
-def iso_utc(wall_s: float | None) -> str:
-    """Unix seconds as ISO 8601 UTC with milliseconds and a `Z`; '' for None."""
-    if wall_s is None:
-        return ""
-    stamp = datetime.fromtimestamp(wall_s, tz=UTC).isoformat(timespec="milliseconds")
-    return stamp.replace("+00:00", "Z")
-
-
-def parse_time(text: str) -> float:
-    """ISO 8601 (`2024-05-01`, `2024-05-01T10:00Z`, with an offset) as Unix seconds.
-
-    A time without an offset is taken as UTC, like every time in the journal.
-    """
-    stamp = datetime.fromisoformat(text.strip())
-    if stamp.tzinfo is None:
-        stamp = stamp.replace(tzinfo=UTC)
-    return stamp.timestamp()
-
-
-_CAST_COLUMNS = (
-    "id, session_id, start_mono_s, start_wall_s, start_clock_synced, ap_timestamp_s,"
-    " lat_e7, lon_e7, alt_mm, sonar_distance_mm, sonar_confidence_pct, planned_depth_m, mode,"
-    " plan_json, end_mono_s, end_wall_s, outcome, reached_depth_m, reason,"
-    " (SELECT count(*) FROM samples WHERE cast_id = casts.id), winch_backend, simulated"
-)
-_FIX_COLUMNS = (
-    "session_id, mono_s, wall_s, clock_synced, frame, ap_timestamp_s, lat_e7, lon_e7, alt_mm,"
-    " sonar_distance_mm, sonar_confidence_pct, ap_time_s, ap_time_order"
-)
-
-
-def _cast(row: tuple[Any, ...]) -> CastRecord:
-    try:
-        plan = json.loads(_plain(row[13]))
-    except (ValueError, TypeError):
-        plan = {"unreadable_plan": repr(row[13])}
-    return CastRecord(
-        id=row[0],
-        session_id=row[1],
-        start_mono_s=row[2],
-        start_wall_s=row[3],
-        start_clock_synced=bool(row[4]),
-        ap_timestamp_s=row[5],
-        lat_deg=row[6] / 1e7,
-        lon_deg=row[7] / 1e7,
-        alt_m=row[8] / 1000.0,
-        water_depth_m=row[9] / 1000.0,
-        sonar_confidence_pct=row[10],
-        planned_depth_m=row[11],
-        mode=row[12],
-        plan=plan if isinstance(plan, dict) else {"plan": plan},
-        end_mono_s=row[14],
-        end_wall_s=row[15],
-        outcome=row[16],
-        reached_depth_m=row[17],
-        reason=row[18],
-        samples=row[19],
-        winch_backend=row[20],
-        simulated=None if row[21] is None else bool(row[21]),
-    )
-
-
-def _plain(value: Any) -> Any:
-    """A JSON value as stored: text, or bytes where text belongs (a damaged file)."""
-    if isinstance(value, bytes):
-        return value.decode("utf-8")  # UnicodeDecodeError: a ValueError, the row is skipped
-    return value
-
-
-def _event(r: tuple[Any, ...]) -> EventRecord:
-    try:
-        detail = json.loads(_plain(r[5]))
-    except (ValueError, TypeError):
-        detail = {"unreadable_detail": repr(r[5])}
-    if not isinstance(r[4], str):
-        raise TypeError(f"event kind {r[4]!r}")
-    return EventRecord(r[0], float(r[1]), float(r[2]), bool(r[3]), r[4], detail)
-
-
-def _sample(r: tuple[Any, ...]) -> SampleRecord:
-    if not isinstance(r[5], str):
-        raise TypeError(f"phase {r[5]!r}")
-    return SampleRecord(
-        cast_id=int(r[0]),
-        mono_s=float(r[1]),
-        wall_s=float(r[2]),
-        clock_synced=bool(r[3]),
-        depth_m=float(r[4]),
-        phase=r[5],
-        lat_deg=None if r[6] is None else r[6] / 1e7,
-        lon_deg=None if r[7] is None else r[7] / 1e7,
-    )
-
-
-def _decoded(raw: int, order: str | None, stored: int | None) -> int | None:
-    """The timestamp's two bytes (stored read big-endian) in the session's byte order."""
-    if order == "little":
-        return ((raw & 0xFF) << 8) | (raw >> 8)
-    if order == "big":
-        return raw
-    return stored
-
-
-def _fix(row: tuple[Any, ...], orders: dict[int | None, str]) -> FixRecord:
-    order = orders.get(row[0], row[12])
-    return FixRecord(
-        session_id=row[0],
-        mono_s=row[1],
-        wall_s=row[2],
-        clock_synced=bool(row[3]),
-        frame=row[4],
-        ap_timestamp_s=row[5],
-        lat_deg=row[6] / 1e7,
-        lon_deg=row[7] / 1e7,
-        alt_m=row[8] / 1000.0,
-        sonar_distance_m=row[9] / 1000.0,
-        sonar_confidence_pct=row[10],
-        ap_time_s=_decoded(row[5], order, row[11]),
-        ap_time_order=order,
-    )
+# An older journal bigger than this is migrated in a private file, not in memory.
+MIGRATE_IN_MEMORY_MAX = 64 << 20
 
 
 class JournalReader:
     """A read-only, consistent view of one journal file. Use as a context manager."""
 
-    def __init__(self, path: Path, *, survey: int | None = None) -> None:
-        """`survey`: read only that survey's rows (a session's id; None: every row)."""
+    def __init__(
+        self,
+        path: Path,
+        *,
+        survey: int | None = None,
+        query_s: float | None = None,
+        cache: Salvaged | None = None,
+    ) -> None:
+        """`survey`: read only that survey's rows (a session's id; None: every row).
+        `query_s`: each statement's time bound (default `guard.QUERY_S`). `cache`: where
+        checks and salvaged copies are kept (default: the process's own)."""
         self.path = Path(path)
         self.survey = survey
-        if not self.path.is_file():
-            raise StoreError(f"no journal at {self.path}")
-        self._private: tempfile.TemporaryDirectory[str] | None = None
-        uri = self.path.resolve().as_uri()
+        self._query_s = query_s
+        self._cache = cache if cache is not None else shared()
+        self._private: Path | None = None
+        self._bad_text = 0
+        self._bad_rows: dict[str, int] = {}
+        self._bad_json: dict[str, int] = {}
+        self.salvage: Salvage | None = None  # set when read from a salvaged copy
+        self.problems: list[str] = []
+        found = files.inspect(self.path)  # StoreError: no journal, or not a file
         try:
-            try:
-                if not os.path.lexists(f"{self.path}-wal"):
-                    # Nobody has it open (SQLite removes the log with its last
-                    # connection): read the file alone, making nothing beside it.
-                    conn = self._snapshot(f"{uri}?immutable=1")
-                else:
-                    conn = self._snapshot(f"{uri}?mode=ro")
-            except sqlite3.OperationalError as exc:
-                code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
-                if code not in (_SQLITE_READONLY, _SQLITE_CANTOPEN):
-                    raise
-                conn = self._snapshot_without_writing_beside()
+            self._use(self._open(found))
         except StoreError as exc:
             self._drop_private()
             raise StoreError(f"{self.path}: {exc}") from exc
@@ -281,17 +123,120 @@ class JournalReader:
         except OSError as exc:
             self._drop_private()
             raise StoreError(f"cannot read {self.path}: {exc}") from exc
-        self._conn = conn
-        self._bad_text = 0
-        self._bad_rows: dict[str, int] = {}
-        self._bad_json: dict[str, int] = {}
-        conn.text_factory = self._decode
-        self.salvage: Salvage | None = None  # set when read from a salvaged copy
         try:
-            self.problems = self._judge()
+            self.problems = self._judge(found)
         except BaseException:
             self.close()
             raise
+
+    # ------------------------------------------------------------ opening
+
+    def _open(self, found: files.JournalFiles) -> sqlite3.Connection:
+        uri = self.path.resolve().as_uri()
+        if not found.wal or found.wal_refused is not None:
+            # Nobody has it open (SQLite removes the log with its last connection),
+            # or its log is not one to read: read the file alone, making nothing beside it.
+            return self._snapshot(f"{uri}?immutable=1")
+        if found.odd_companions:
+            return self._private_copy()
+        try:
+            return self._snapshot(f"{uri}?mode=ro")
+        except sqlite3.OperationalError as exc:
+            code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
+            if code not in (_SQLITE_READONLY, _SQLITE_CANTOPEN):
+                raise
+        return self._private_copy()
+
+    def _use(self, conn: sqlite3.Connection) -> None:
+        self._conn = conn
+        conn.text_factory = self._decode
+
+    def _connect(self, uri: str) -> sqlite3.Connection:
+        conn = sqlite3.connect(uri, uri=True, isolation_level=None)
+        self._bounds = guard.Bounds(conn, self._query_s)  # before any statement runs
+        return conn
+
+    def _snapshot(self, uri: str) -> sqlite3.Connection:
+        """Open `uri` and begin the one read transaction of the reader's life."""
+        conn = self._connect(uri)
+        try:
+            with self._bounds.statement():
+                version = schema.file_version(conn)
+            if version < schema.SCHEMA_VERSION:
+                conn = self._migrated_copy(conn)
+            # One read transaction for the reader's life: one snapshot.
+            with self._bounds.statement():
+                conn.execute("BEGIN")
+                conn.execute("SELECT count(*) FROM sqlite_master").fetchone()
+        except BaseException:
+            conn.close()
+            raise
+        return conn
+
+    def _private_copy(self) -> sqlite3.Connection:
+        """Read a copy of the file and its log (a directory we may not write, so no `-shm`
+        can be made; or a `-shm` or `-journal` beside it that is not a file)."""
+        wal = Path(f"{self.path}-wal")
+        if not wal.exists() or wal.stat().st_size == 0:
+            # No log: the file alone is the journal, and nothing is writing it.
+            return self._snapshot(f"{self.path.resolve().as_uri()}?immutable=1")
+        self._private = scratch.make("read")
+        copy = self._private / self.path.name
+        for _ in range(_COPY_ATTEMPTS):
+            before = self._signature(wal)
+            copy.unlink(missing_ok=True)
+            Path(f"{copy}-wal").unlink(missing_ok=True)
+            files.copy_regular(self.path, copy)
+            files.copy_regular(wal, f"{copy}-wal", files.WAL_MAX_BYTES)
+            if self._signature(wal) == before:
+                break
+        # The copy is ours: SQLite may build its -shm beside it and replay the log.
+        return self._snapshot(f"{copy.as_uri()}?mode=ro")
+
+    def _signature(self, wal: Path) -> tuple[int, int, bytes]:
+        """What changes when the daemon checkpoints: the file, and the log's salt."""
+        stat = os.stat(self.path)
+        with files.open_regular(wal, files.WAL_MAX_BYTES) as log:
+            header = log.read(32)
+        return stat.st_size, stat.st_mtime_ns, header
+
+    def _migrated_copy(self, conn: sqlite3.Connection) -> sqlite3.Connection:
+        """An older journal migrated in a copy of our own: in memory, or in a private file
+        when it is big (a stranger's file may be any size)."""
+        target = ":memory:"
+        if self.path.stat().st_size > MIGRATE_IN_MEMORY_MAX:
+            if self._private is None:
+                self._private = scratch.make("read")
+            target = str(self._private / f"migrated-{self.path.name}")
+        copy = sqlite3.connect(target, isolation_level=None)
+        try:
+            conn.backup(copy)
+            schema.migrate(copy)
+        except BaseException:
+            copy.close()
+            raise
+        finally:
+            conn.close()
+        self._bounds = guard.Bounds(copy, self._query_s)
+        return copy
+
+    def _drop_private(self) -> None:
+        private, self._private = self._private, None
+        if private is not None:
+            scratch.remove(private)
+
+    def close(self) -> None:
+        self._conn.close()
+        self._drop_private()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type: object, *exc_info: object) -> None:
+        self.close()
+        report = self.damage_report() if exc_type is None else None
+        if report is not None:  # after the answer: say what it lacks
+            raise DamagedJournalError(report)
 
     # ------------------------------------------------------------ damage
 
@@ -302,47 +247,75 @@ class JournalReader:
             self._bad_text += 1
             return raw.decode("utf-8", errors="replace")
 
-    def _judge(self) -> list[str]:
-        """What is wrong with the file; a damaged one is read from a salvaged copy."""
-        from cc_daemon.store import damage  # the daemon imports this module, never needs that
-
-        problems: list[str] = []
-        wal = damage.wal_damage(self.path)
-        if wal is not None:
-            problems.append(wal)
+    def _judge(self, found: files.JournalFiles) -> list[str]:
+        """What is wrong with the file; a damaged one is read from a salvaged copy, and
+        a table that is not one of the journal's shape is read as an empty one."""
+        problems = [found.wal_refused] if found.wal_refused else []
+        problems += [f"{odd}: not opened" for odd in found.odd_companions]
+        if found.wal and found.wal_refused is None:
+            wal = self._cache.wal_damage(self.path)
+            if wal is not None:
+                problems.append(wal)
+        stamp = files.stamp(self.path)
         try:
-            found = damage.quick_check(self._conn)
+            damaged = self._cache.quick_check(
+                (str(self.path), stamp, found.wal_refused is None),
+                lambda: damage.quick_check(self._bounds),
+            )
+        except guard.QueryTimeout as exc:
+            problems.append(f"SQLite's check of the file did not finish ({exc})")
+            damaged = []
         except sqlite3.Error as exc:
-            found = [str(exc)]
-        if found:
-            problems.append(f"SQLite's check found damage: {'; '.join(found)}")
-            self._read_salvaged()
-        present = {n for (n,) in self._query("SELECT name FROM sqlite_master", (), "the schema")}
-        missing = [t for t in damage.journal_tables() if t not in present]
-        if missing:
-            problems.append(f"tables missing: {', '.join(missing)}")
+            damaged = [str(exc)]
+        if damaged:
+            problems.append(f"SQLite's check found damage: {'; '.join(damaged)}")
+            self._read_salvaged(found)
+        try:
+            problems += guard.check_tables(self._bounds)
+        except (sqlite3.Error, guard.QueryTimeout) as exc:
+            raise DamagedJournalError(
+                f"{self.path} is damaged: cannot read its tables ({exc});"
+                " `cc-daemon recover` saves what can be read"
+            ) from exc
         return problems
 
-    def _read_salvaged(self) -> None:
-        """Read what `damage.salvage` can save of the file, from a private copy."""
-        if self._private is None:
-            self._private = tempfile.TemporaryDirectory(prefix="cc-daemon-read-")
-        from cc_daemon.store import damage
-
-        copy = Path(self._private.name) / f"salvaged-{self.path.name}"
+    def _read_salvaged(self, found: files.JournalFiles) -> None:
+        """Read what `damage.salvage` can save of the file, from the cache's copy."""
         try:
-            salvage = damage.salvage(self.path, copy)
-        except (sqlite3.Error, OSError) as exc:
+            conn, salvage = self._cache.open_copy(self.path, (str(self.path), found.key))
+        except (sqlite3.Error, OSError, StoreError) as exc:
             raise DamagedJournalError(f"{self.path} is damaged beyond reading: {exc}") from exc
         self._conn.close()
-        self._conn = sqlite3.connect(f"{copy.as_uri()}?mode=ro", uri=True, isolation_level=None)
-        self._conn.text_factory = self._decode
-        self._conn.execute("BEGIN")
+        self._bounds = guard.Bounds(conn, self._query_s)
+        self._use(conn)
+        with self._bounds.statement():
+            conn.execute("BEGIN")
         self.salvage = salvage
+
+    def _shield(self) -> bool:
+        """Values too big to load: read NULL in their place, and say so once."""
+        found = guard.shield_oversize(self._bounds)
+        if not found:
+            return False
+        count = sum(found.values())
+        where = ", ".join(f"{table} {n}" for table, n in found.items())
+        size = files.size_text(guard.CELL_MAX_BYTES)
+        noun = "value" if count == 1 else "values"
+        self.problems.append(f"{count} {noun} over {size} not read ({where})")
+        return True
 
     def _query(self, sql: str, params: Any, what: str) -> list[tuple[Any, ...]]:
         try:
-            return self._conn.execute(sql, params).fetchall()
+            try:
+                return self._bounds.rows(sql, params)
+            except sqlite3.DataError as exc:
+                if not guard.too_big(exc) or not self._shield():
+                    raise
+            return self._bounds.rows(sql, params)
+        except guard.QueryTimeout as exc:
+            raise DamagedJournalError(
+                f"{self.path}: reading {what}, {exc}; `cc-daemon recover` saves what can be read"
+            ) from exc
         except sqlite3.Error as exc:
             raise DamagedJournalError(
                 f"{self.path} is damaged: cannot read {what} ({exc});"
@@ -350,20 +323,22 @@ class JournalReader:
             ) from exc
 
     def _records(
-        self, convert: Callable[[tuple[Any, ...]], R], rows: list[Any], what: str
+        self, convert: Callable[[tuple[Any, ...]], R | None], rows: list[Any], what: str
     ) -> list[R]:
-        records = []
+        found = []
         for row in rows:
             try:
                 record = convert(row)
             except (TypeError, ValueError, ArithmeticError):
                 self._bad_rows[what] = self._bad_rows.get(what, 0) + 1
                 continue
-            records.append(record)
+            if record is None:
+                continue
+            found.append(record)
             json_value = getattr(record, "detail", None) or getattr(record, "plan", None)
-            if isinstance(json_value, dict) and _UNREADABLE_JSON & json_value.keys():
+            if isinstance(json_value, dict) and records.UNREADABLE_JSON & json_value.keys():
                 self._bad_json[what] = self._bad_json.get(what, 0) + 1
-        return records
+        return found
 
     def damage_report(self) -> str | None:
         """One line saying what this reader could not read, or None if nothing."""
@@ -382,66 +357,7 @@ class JournalReader:
             " read (`cc-daemon recover` saves what can be)"
         )
 
-    def _snapshot(self, uri: str) -> sqlite3.Connection:
-        """Open `uri` and begin the one read transaction of the reader's life."""
-        conn = sqlite3.connect(uri, uri=True, isolation_level=None)
-        try:
-            version = schema.file_version(conn)
-            if version < schema.SCHEMA_VERSION:
-                conn = self._migrated_copy(conn)
-            # One read transaction for the reader's life: one snapshot.
-            conn.execute("BEGIN")
-            conn.execute("SELECT count(*) FROM casts").fetchone()
-        except BaseException:
-            conn.close()
-            raise
-        return conn
-
-    def _snapshot_without_writing_beside(self) -> sqlite3.Connection:
-        """Read a file whose directory we may not write (so no `-shm` can be made)."""
-        wal = Path(f"{self.path}-wal")
-        if not wal.exists() or wal.stat().st_size == 0:
-            # No log: the file alone is the journal, and nothing is writing it.
-            return self._snapshot(f"{self.path.resolve().as_uri()}?immutable=1")
-        self._private = tempfile.TemporaryDirectory(prefix="cc-daemon-read-")
-        copy = Path(self._private.name) / self.path.name
-        for _ in range(_COPY_ATTEMPTS):
-            before = self._signature(wal)
-            shutil.copyfile(self.path, copy)
-            shutil.copyfile(wal, f"{copy}-wal")
-            if self._signature(wal) == before:
-                break
-        # The copy is ours: SQLite may build its -shm beside it and replay the log.
-        return self._snapshot(f"{copy.as_uri()}?mode=ro")
-
-    def _signature(self, wal: Path) -> tuple[int, int, bytes]:
-        """What changes when the daemon checkpoints: the file, and the log's salt."""
-        stat = os.stat(self.path)
-        with wal.open("rb") as log:
-            header = log.read(32)
-        return stat.st_size, stat.st_mtime_ns, header
-
-    def _drop_private(self) -> None:
-        private, self._private = self._private, None
-        if private is not None:
-            private.cleanup()
-
-    @staticmethod
-    def _migrated_copy(conn: sqlite3.Connection) -> sqlite3.Connection:
-        copy = sqlite3.connect(":memory:", isolation_level=None)
-        try:
-            conn.backup(copy)
-            schema.migrate(copy)
-        except BaseException:
-            copy.close()
-            raise
-        finally:
-            conn.close()
-        return copy
-
-    def close(self) -> None:
-        self._conn.close()
-        self._drop_private()
+    # ------------------------------------------------------------ reading
 
     def copy_to(self, target: sqlite3.Connection) -> None:
         """Copy this reader's snapshot, whole, into `target` (SQLite's online backup)."""
@@ -450,22 +366,20 @@ class JournalReader:
         except sqlite3.DatabaseError as exc:
             raise DamagedJournalError(f"{self.path} is damaged: cannot copy it ({exc})") from exc
 
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, exc_type: object, *exc_info: object) -> None:
-        self.close()
-        report = self.damage_report() if exc_type is None else None
-        if report is not None:  # after the answer: say what it lacks
-            raise DamagedJournalError(report)
+    def rows(self, sql: str, what: str, params: Any = ()) -> list[tuple[Any, ...]]:
+        """Rows of a statement of the caller's, within the reader's bounds (`snapshot`'s
+        counts); DamagedJournalError naming `what` if they cannot be read."""
+        return self._query(sql, params, what)
 
     def casts(self, *, cast_id: int | None = None, since: float | None = None) -> list[CastRecord]:
         """Casts by id; `since` keeps those started at or after that Unix time."""
         where, params = self._filters(
             ("id", cast_id), ("start_wall_s >=", since), ("session_id", self.survey)
         )
-        rows = self._query(f"SELECT {_CAST_COLUMNS} FROM casts{where} ORDER BY id", params, "casts")
-        return self._records(_cast, rows, "casts")
+        rows = self._query(
+            f"SELECT {records.CAST_COLUMNS} FROM casts{where} ORDER BY id", params, "casts"
+        )
+        return self._records(records.cast, rows, "casts")
 
     def samples(
         self, *, cast_id: int | None = None, since: float | None = None
@@ -481,7 +395,7 @@ class JournalReader:
             params,
             "samples",
         )
-        return self._records(_sample, rows, "samples")
+        return self._records(records.sample, rows, "samples")
 
     def fixes(self, *, cast_id: int | None = None, since: float | None = None) -> list[FixRecord]:
         """Fixes in the order received; with `cast_id`, those received during that cast."""
@@ -507,9 +421,11 @@ class JournalReader:
             clauses.append("session_id = ?")
             params.append(self.survey)
         where = f" WHERE {' AND '.join(clauses)}" if clauses else ""
-        rows = self._query(f"SELECT {_FIX_COLUMNS} FROM fixes{where} ORDER BY id", params, "fixes")
+        rows = self._query(
+            f"SELECT {records.FIX_COLUMNS} FROM fixes{where} ORDER BY id", params, "fixes"
+        )
         orders = self._session_orders()
-        return self._records(lambda row: _fix(row, orders), rows, "fixes")
+        return self._records(lambda row: records.fix(row, orders), rows, "fixes")
 
     def _session_orders(self) -> dict[int | None, str]:
         """Each session's last byte order: "big" until the daemon learnt the order, then
@@ -525,31 +441,22 @@ class JournalReader:
     def events(self, *, since: float | None = None) -> list[EventRecord]:
         where, params = self._filters(("wall_s >=", since), ("session_id", self.survey))
         rows = self._query(
-            "SELECT session_id, mono_s, wall_s, clock_synced, kind, detail_json"
-            f" FROM events{where} ORDER BY id",
-            params,
-            "events",
+            f"SELECT {records.EVENT_COLUMNS} FROM events{where} ORDER BY id", params, "events"
         )
-        return self._records(_event, rows, "events")
+        return self._records(records.event, rows, "events")
 
     def sonde_samples(
         self, *, cast_id: int | None = None, since: float | None = None
     ) -> list[sonde.SondeSampleRecord]:
         """The sonde's readings in time order (`store.sonde`)."""
-        try:
-            return sonde.read_samples(self._conn, cast_id=cast_id, since=since, session=self.survey)
-        except sqlite3.Error as exc:
-            raise DamagedJournalError(
-                f"{self.path} is damaged: cannot read the sonde's samples ({exc})"
-            ) from exc
-        except (TypeError, ValueError, ArithmeticError) as exc:
-            raise DamagedJournalError(
-                f"{self.path} is damaged: an unreadable sonde sample ({exc})"
-            ) from exc
+        sql, params = sonde.query(cast_id=cast_id, since=since, session=self.survey)
+        rows = self._query(sql, params, "the sonde's samples")
+        return self._records(sonde.record, rows, "sonde samples")
 
     def surveys(self) -> list[SurveyRecord]:
         """Every survey in the file (`store.surveys`), whatever `survey` is set to."""
-        return list_surveys(self._conn)
+        rows = self._query(surveys.QUERY, (), "the surveys")
+        return self._records(surveys.record, rows, "surveys")
 
     def select_survey(self, choice: str | int) -> SurveyRecord | None:
         """Read only the survey `choice` names (`latest`, a number, or `all`: None).
@@ -562,12 +469,9 @@ class JournalReader:
         self, *, since: float | None = None, until: float | None = None
     ) -> list[sonar.SonarReadingRecord]:
         """The daemon's own sonar readings in time order (`store.sonar`)."""
-        try:
-            return sonar.read_readings(self._conn, since=since, until=until)
-        except sqlite3.Error as exc:
-            raise DamagedJournalError(
-                f"{self.path} is damaged: cannot read the sonar's readings ({exc})"
-            ) from exc
+        sql, params = sonar.query(since=since, until=until)
+        rows = self._query(sql, params, "the sonar's readings")
+        return self._records(sonar.record, rows, "sonar readings")
 
     def _cast_end(self, cast: CastRecord) -> tuple[float, float]:
         """When a cast's data ends: its end row, else its last sample, else its start."""
@@ -576,7 +480,7 @@ class JournalReader:
         last = self._query(
             "SELECT max(mono_s), max(wall_s) FROM samples WHERE cast_id = ?", (cast.id,), "samples"
         )[0]
-        if last[0] is None:
+        if not all(isinstance(t, int | float) for t in last):
             return cast.start_mono_s, cast.start_wall_s
         return float(last[0]), float(last[1])
 

@@ -5,29 +5,36 @@ the boat: SQLite's online backup of one read snapshot (`JournalReader`, which
 opens the journal read-only and never disturbs the daemon writing it), checked
 with `PRAGMA quick_check`, switched out of write-ahead logging so the copy is
 a single file, synced to disk when the copy commits, and described (casts,
-samples, fixes, events, time span). It never overwrites a file: DEST is
-created exclusively, and removed again if the copy fails.
+samples, fixes, events, time span: counted through the reader's bounds, so a
+table that is a view in a stranger's file is never run). It never overwrites a
+file: DEST is created exclusively (and refused if a `-journal` or `-wal` beside
+it, even a dangling symlink, is there), and removed again if the copy fails.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import sqlite3
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from cc_daemon.store import files, guard
 from cc_daemon.store.reader import DamagedJournalError, JournalReader, iso_utc
 from cc_daemon.store.schema import StoreError
+from cc_daemon.store.values import dated
 
-_SPAN_SQL = """
-SELECT min(t), max(t) FROM (
-    SELECT min(wall_s) AS t FROM fixes UNION ALL SELECT max(wall_s) FROM fixes
-    UNION ALL SELECT min(wall_s) FROM samples UNION ALL SELECT max(wall_s) FROM samples
-    UNION ALL SELECT min(wall_s) FROM events UNION ALL SELECT max(wall_s) FROM events
-    UNION ALL SELECT min(start_wall_s) FROM casts UNION ALL SELECT max(end_wall_s) FROM casts
+_TIMES = (("fixes", "wall_s"), ("samples", "wall_s"), ("events", "wall_s"))
+_SPAN_SQL = (
+    "SELECT min(t), max(t) FROM ("
+    + " UNION ALL ".join(
+        f"SELECT min({dated(c)}) AS t FROM {table} UNION ALL SELECT max({dated(c)}) FROM {table}"
+        for table, c in _TIMES
+    )
+    + f" UNION ALL SELECT min({dated('start_wall_s')}) FROM casts"
+    + f" UNION ALL SELECT max({dated('end_wall_s')}) FROM casts)"
 )
-"""
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,6 +88,9 @@ def take_snapshot(source: Path, dest: Path) -> SnapshotReport:
     `StoreError` if the journal cannot be read or the copy is not sound.
     """
     path = destination(source, dest)
+    for companion in files.COMPANIONS:  # SQLite would follow a symlink there and write at it
+        if os.path.lexists(f"{path}{companion}"):
+            raise FileExistsError(errno.EEXIST, "exists", f"{path}{companion}")
     report: SnapshotReport | None = None
     try:
         with JournalReader(source) as reader:  # raises StoreError for a missing journal
@@ -109,32 +119,29 @@ def _counts(report: SnapshotReport) -> str:
 _COUNTED = ("casts", "samples", "fixes", "events")
 
 
-def _rows_in(conn: sqlite3.Connection, table: str) -> int:
-    try:
-        return int(conn.execute(f"SELECT count(*) FROM {table}").fetchone()[0])
-    except sqlite3.Error:  # a table gone from a damaged journal: its reader says so
-        return 0
+def _rows_in(reader: JournalReader, table: str) -> int:
+    """Rows of `table` as the reader reads it (a table that is not one reads as empty)."""
+    return int(reader.rows(f"SELECT count(*) FROM {table}", table)[0][0])
 
 
 def _copy(reader: JournalReader, source: Path, path: Path) -> SnapshotReport:
     target = sqlite3.connect(path, isolation_level=None)
     try:
+        bounds = guard.Bounds(target)
         try:
             reader.copy_to(target)
             # One file to carry: the copy inherited the journal's WAL mode.
             target.execute("PRAGMA journal_mode = DELETE").fetchone()
-            check = target.execute("PRAGMA quick_check").fetchone()[0]
-        except sqlite3.Error as exc:
+            check = bounds.rows("PRAGMA quick_check")[0][0]
+        except (sqlite3.Error, guard.QueryTimeout) as exc:
             raise StoreError(f"could not copy {source} to {path}: {exc}") from exc
         if check != "ok":
             raise StoreError(f"the copy of {source} failed its check: {check}")
-        casts, samples, fixes, events = (_rows_in(target, table) for table in _COUNTED)
-        try:
-            first, last = target.execute(_SPAN_SQL).fetchone()
-        except sqlite3.Error:  # a table gone from a damaged journal: its reader says so
-            first = last = None
     finally:
         target.close()
+    # Counted through the reader's bounds: the copy holds whatever the file held.
+    casts, samples, fixes, events = (_rows_in(reader, table) for table in _COUNTED)
+    first, last = reader.rows(_SPAN_SQL, "the times")[0]
     return SnapshotReport(
         source, path, casts, samples, fixes, events, first, last, path.stat().st_size
     )

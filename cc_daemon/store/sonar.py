@@ -4,13 +4,14 @@ This module owns the query that gives the readings back as `SonarReadingRecord`s
 each with its validity by the one rule the planner applies
 (`core.cast.bottom.sounding_valid`): a reading is stored as it arrived and
 flagged here, never mended. A journal from before the table existed has no
-readings (not an error). It never writes.
+readings (not an error). It never writes, and never runs a query itself
+(`store.reader` does, within its bounds).
 """
 
-import sqlite3
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from cc_daemon.core.cast.bottom import sounding_valid
+from cc_daemon.store.values import integer, number, text, wall_time
 
 
 class SonarReadingRecord(NamedTuple):
@@ -26,18 +27,23 @@ class SonarReadingRecord(NamedTuple):
         return sounding_valid(self.distance_mm, self.confidence_pct)
 
 
-def read_readings(
-    conn: sqlite3.Connection, *, since: float | None = None, until: float | None = None
-) -> list[SonarReadingRecord]:
-    """The readings in time order, from `since` to `until` (wall clock), if given."""
-    present = conn.execute(
-        "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'sonar_readings'"
-    ).fetchone()
-    if present is None:
-        return []
-    rows = conn.execute(
+def query(*, since: float | None = None, until: float | None = None) -> tuple[str, list[object]]:
+    """The SELECT of the readings in time order, from `since` to `until` (wall clock),
+    if given, and its parameters; each row becomes a record with `record`."""
+    return (
         "SELECT mono_s, wall_s, clock_synced, port, distance_mm, confidence_pct"
         " FROM sonar_readings WHERE wall_s >= ? AND wall_s <= ? ORDER BY wall_s, id",
-        (-1e300 if since is None else since, 1e300 if until is None else until),
-    ).fetchall()
-    return [SonarReadingRecord(r[0], r[1], bool(r[2]), r[3], int(r[4]), int(r[5])) for r in rows]
+        [-1e300 if since is None else since, 1e300 if until is None else until],
+    )
+
+
+def record(r: tuple[Any, ...]) -> SonarReadingRecord:
+    """One stored reading; ValueError if its time or numbers cannot be read as such."""
+    return SonarReadingRecord(
+        number(r[0], "mono_s"),
+        wall_time(r[1], "wall_s"),
+        bool(r[2]),
+        text(r[3], "port"),
+        integer(r[4], "distance_mm"),
+        integer(r[5], "confidence_pct"),
+    )

@@ -3,21 +3,25 @@
 This module owns the `sonde_samples` table (the migration that adds it, written
 as one self-contained step so it can take any place in `schema.MIGRATIONS`),
 the row `Journal.record_sonde_sample` hands the writer, the INSERT that stores
-it, and the query that gives the readings back as `SondeSampleRecord`s.
+it, and the query and the conversion that give the readings back as
+`SondeSampleRecord`s.
 
 A reading is stored whole: the request's monotonic and wall-clock times, the
 cast and phase it belongs to (NULL and "surface" between casts), the winch's
 line out when the request went out, the sonde's own depth, the status of the
 request and every parameter's value in `values_json` (JSON null when missing)
 with the reason of each missing one in `missing_json`. A missing value is never
-written as a number. It never imports asyncio or the sonde's reader.
+written as a number, and a stored one that is not a finite number is never read
+back as one (`record` refuses the row). It never imports asyncio or the sonde's
+reader, and never runs a query itself (`store.reader` does, within its bounds).
 """
 
 import json
 import math
-import sqlite3
 from collections.abc import Mapping
 from typing import Any, NamedTuple
+
+from cc_daemon.store.values import integer, json_value, number, text, wall_time
 
 # Row kind in the journal's buffer (0 to 4 are journal.py's).
 SONDE = 5
@@ -119,20 +123,11 @@ def build_row(
     )
 
 
-def read_samples(
-    conn: sqlite3.Connection,
-    *,
-    cast_id: int | None = None,
-    since: float | None = None,
-    session: int | None = None,
-) -> list[SondeSampleRecord]:
-    """Readings in time order (of one session, if given); none if the file predates
-    the table."""
-    present = conn.execute(
-        "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'sonde_samples'"
-    ).fetchone()
-    if not present:
-        return []
+def query(
+    *, cast_id: int | None = None, since: float | None = None, session: int | None = None
+) -> tuple[str, list[object]]:
+    """The SELECT of the readings in time order (of one session, if given), and its
+    parameters; each row becomes a record with `record`."""
     clauses: list[str] = []
     params: list[object] = []
     if cast_id is not None:
@@ -145,24 +140,40 @@ def read_samples(
         clauses.append("session_id = ?")
         params.append(session)
     where = f" WHERE {' AND '.join(clauses)}" if clauses else ""
-    rows = conn.execute(
-        f"SELECT {', '.join(COLUMNS)} FROM sonde_samples{where} ORDER BY mono_s, id", params
+    return f"SELECT {', '.join(COLUMNS)} FROM sonde_samples{where} ORDER BY mono_s, id", params
+
+
+def _values(raw: Any) -> dict[str, float | None]:
+    found = json_value(raw)
+    if not isinstance(found, dict):
+        raise ValueError("the values are not a JSON object")
+    return {
+        str(name): None if value is None else number(value, f"value {name!r}")
+        for name, value in found.items()
+    }
+
+
+def _missing(raw: Any) -> dict[str, str]:
+    found = json_value(raw)
+    if not isinstance(found, dict) or not all(isinstance(v, str) for v in found.values()):
+        raise ValueError("the missing values' reasons are not a JSON object of text")
+    return {str(name): reason for name, reason in found.items()}
+
+
+def record(r: tuple[Any, ...]) -> SondeSampleRecord:
+    """One stored reading; ValueError if a value in it cannot be true (the reader skips it)."""
+    return SondeSampleRecord(
+        cast_id=None if r[0] is None else integer(r[0], "a reading's cast"),
+        phase=text(r[1], "phase"),
+        mono_s=number(r[2], "mono_s"),
+        wall_s=wall_time(r[3], "wall_s"),
+        clock_synced=bool(r[4]),
+        duration_s=number(r[5], "duration_s"),
+        status=text(r[6], "status"),
+        error=None if r[7] is None else text(r[7], "error"),
+        line_out_m=None if r[8] is None else number(r[8], "line_out_m"),
+        sonde_depth_m=None if r[9] is None else number(r[9], "sonde_depth_m"),
+        simulated=bool(r[10]),
+        values=_values(r[11]),
+        missing=_missing(r[12]),
     )
-    return [
-        SondeSampleRecord(
-            cast_id=r[0],
-            phase=r[1],
-            mono_s=r[2],
-            wall_s=r[3],
-            clock_synced=bool(r[4]),
-            duration_s=r[5],
-            status=r[6],
-            error=r[7],
-            line_out_m=r[8],
-            sonde_depth_m=r[9],
-            simulated=bool(r[10]),
-            values=json.loads(r[11]),
-            missing=json.loads(r[12]),
-        )
-        for r in rows
-    ]

@@ -7,11 +7,13 @@ read the latest survey unless told `--survey N` or `--survey all`. A session
 that recorded nothing (a start that failed, a daemon that heard no autopilot)
 is not a survey.
 
-It only reads, and never opens the file itself.
+It never opens the file nor runs a query itself: `store.reader` runs `QUERY`
+(within its bounds) and hands each row to `record`.
 """
 
-import sqlite3
-from typing import NamedTuple
+from typing import Any, NamedTuple
+
+from cc_daemon.store.values import dated, integer, wall_time
 
 ALL = "all"
 LATEST = "latest"
@@ -28,47 +30,36 @@ class SurveyRecord(NamedTuple):
     winch_backend: str | None
 
 
-_SURVEYS = """
+QUERY = f"""
 SELECT s.id, s.opened_wall_s, s.simulated, s.winch_backend,
     (SELECT count(*) FROM casts c WHERE c.session_id = s.id),
     (SELECT count(*) FROM casts c WHERE c.session_id = s.id AND c.outcome = 'completed'),
     (SELECT count(*) FROM fixes f WHERE f.session_id = s.id),
-    (SELECT max(f.wall_s) FROM fixes f WHERE f.session_id = s.id),
-    (SELECT max(coalesce(c.end_wall_s, c.start_wall_s)) FROM casts c WHERE c.session_id = s.id)
+    (SELECT max({dated("f.wall_s")}) FROM fixes f WHERE f.session_id = s.id),
+    (SELECT max({dated("coalesce(c.end_wall_s, c.start_wall_s)")})
+        FROM casts c WHERE c.session_id = s.id)
 FROM sessions s ORDER BY s.id
 """
 
 
-def list_surveys(conn: sqlite3.Connection) -> list[SurveyRecord]:
-    """Every session that recorded a fix or a cast, oldest first."""
-    out = []
-    for (
-        sid,
-        opened,
-        simulated,
-        backend,
-        stations,
-        measured,
-        fixes,
-        last_fix,
-        last_cast,
-    ) in conn.execute(_SURVEYS):
-        if not stations and not fixes:
-            continue
-        ends = [t for t in (last_fix, last_cast) if t is not None]
-        out.append(
-            SurveyRecord(
-                id=sid,
-                start_wall_s=opened,
-                end_wall_s=max(ends) if ends else opened,
-                stations=stations,
-                measured=measured,
-                fixes=fixes,
-                simulated=None if simulated is None else bool(simulated),
-                winch_backend=backend,
-            )
-        )
-    return out
+def record(row: tuple[Any, ...]) -> SurveyRecord | None:
+    """One row of `QUERY` as a survey; None for a session that recorded nothing.
+    ValueError if its start cannot be a time (the reader skips and counts it)."""
+    sid, opened, simulated, backend, stations, measured, fixes, last_fix, last_cast = row
+    if not stations and not fixes:
+        return None
+    start = wall_time(opened, "a survey's start")
+    ends = [t for t in (last_fix, last_cast) if t is not None]
+    return SurveyRecord(
+        id=integer(sid, "a survey's number"),
+        start_wall_s=start,
+        end_wall_s=max(ends) if ends else start,
+        stations=stations,
+        measured=measured,
+        fixes=fixes,
+        simulated=None if simulated is None else bool(simulated),
+        winch_backend=backend if isinstance(backend, str) else None,
+    )
 
 
 def choose_survey(
