@@ -93,11 +93,13 @@ SHARED = DescriptorBudget()
 @dataclass
 class Admission:
     """At most `total` connections held on one socket, `per_peer` of them by one uid,
-    each within the shared descriptor budget."""
+    each within the shared descriptor budget, and, with a `rate`, at most so many
+    a minute of one uid."""
 
     total: int
     per_peer: int
     budget: DescriptorBudget = field(default_factory=lambda: SHARED)
+    rate: RequestRate | None = None
     held: dict[int, int] = field(default_factory=dict)
 
     @property
@@ -111,6 +113,8 @@ class Admission:
             return f"{self.per_peer} connections of this user already"
         if self.count >= self.total:
             return f"{self.total} connections already"
+        if self.rate is not None and not self.rate.allow(uid):
+            return f"more than {self.rate.per_minute:g} connections a minute of this user"
         if not self.budget.take():
             return f"descriptors kept in reserve ({self.budget.reserve})"
         self.held[uid] = mine + 1

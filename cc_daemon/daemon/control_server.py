@@ -16,11 +16,13 @@ descriptors run short): root, the daemon's own user, or a member of the
 socket's group. Every connection gets an answer, a refusal included, and the
 daemon reads the request before it closes, so the answer is never lost to a
 reset. The bounds: `MAX_CONNECTIONS` at once, `PER_PEER` of one user, within
-the descriptors the daemon keeps (`admission`); `REQUESTS_PER_MINUTE` of one
-user; one line of `control_request.MAX_REQUEST` bytes within
-`REQUEST_TIMEOUT_S`. A release or a haul is logged with the peer's uid and pid
-and journaled by the daemon (`operator_release`, `operator_haul_in`); a refusal
-is logged with the uid, its repeats counted.
+the descriptors the daemon keeps (`admission`); `REQUEST_BURST` connections of
+one user at once, then `REQUESTS_PER_MINUTE`; `ACCEPTS_PER_S` accepted in all;
+one line of `control_request.MAX_REQUEST` bytes within `REQUEST_TIMEOUT_S`.
+Whom the access rule refuses is answered at once, before any of these counts it.
+A release or a haul is logged with the peer's uid and pid and journaled by the
+daemon (`operator_release`, `operator_haul_in`); refusals are logged with the
+uid, once a minute with their count (`socket_listener.Refusals`).
 
 It must never block the event loop or raise into the daemon; it changes nothing
 itself: it hands the request to `release` or `home` and reports their answer.
@@ -33,6 +35,7 @@ import grp
 import json
 import os
 import pwd
+import socket
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -59,6 +62,10 @@ MAX_CONNECTIONS = 16
 PER_PEER = 4
 REQUESTS_PER_MINUTE = 10
 REQUEST_BURST = 5
+# Connections accepted a second, refused ones included: people use this socket, a
+# few times a minute; a client connecting in a loop, or pushing a megabyte with
+# each connection, is slowed down to this (benchmarks/socket_attacks.py).
+ACCEPTS_PER_S = 100.0
 MAX_DISCARD = 64 * 1024  # read after the answer, so that closing does not reset it
 _GROUPS_TTL_S = 60.0
 
@@ -120,14 +127,15 @@ class ControlServer:
     ) -> None:
         self._release = release
         self._home = home
-        self._rate = RequestRate(REQUESTS_PER_MINUTE, REQUEST_BURST)
+        rate = RequestRate(REQUESTS_PER_MINUTE, REQUEST_BURST)
         self._listener = Listener(
             path,
-            self._serve_one,
-            Admission(MAX_CONNECTIONS, PER_PEER, budget),
+            self._accepted,
+            Admission(MAX_CONNECTIONS, PER_PEER, budget, rate=rate),
             what="control",
             refuse=self._busy,
-            limit=MAX_REQUEST + 1,
+            vet=self._vet,
+            accepts_per_s=ACCEPTS_PER_S,
         )
         self._group = ""
 
@@ -147,10 +155,22 @@ class ControlServer:
     def _busy(self, peer: Peer, why: str) -> bytes:
         return _answer_line(False, f"busy ({why} on the control socket): try again")
 
+    def _vet(self, conn: socket.socket, peer: Peer) -> tuple[str, bytes] | None:
+        """Refuse at once, before any cap or rate counts it, whom the socket's
+        access rule refuses: the answer is always "not authorised"."""
+        gid = os.stat(self.path).st_gid
+        if authorised(peer, gid, peer_groups(conn)):
+            return None
+        message = f"not authorised: root or group {self._group or gid} only"
+        return "not authorised", _answer_line(False, message)
+
+    def _accepted(self, conn: socket.socket, peer: Peer, place: Ticket) -> None:
+        self._listener.serve(conn, peer, place, self._serve_one, limit=MAX_REQUEST + 1)
+
     async def _serve_one(
         self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, peer: Peer, _: Ticket
     ) -> None:
-        ok, message = await self._answer(reader, writer, peer)
+        ok, message = await self._answer(reader, peer)
         writer.write(_answer_line(ok, message))
         try:
             async with asyncio.timeout(REQUEST_TIMEOUT_S):
@@ -162,17 +182,7 @@ class ControlServer:
         except (TimeoutError, OSError):
             pass
 
-    async def _answer(
-        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, peer: Peer
-    ) -> tuple[bool, str]:
-        groups = peer_groups(writer.get_extra_info("socket"))
-        gid = os.stat(self.path).st_gid
-        if not authorised(peer, gid, groups):
-            _log.warning("control request refused: not authorised", uid=peer.uid)
-            return False, f"not authorised: root or group {self._group or gid} only"
-        if not self._rate.allow(peer.uid):
-            _log.warning("control request refused: too many", uid=peer.uid)
-            return False, f"busy: at most {REQUESTS_PER_MINUTE} requests a minute; try again"
+    async def _answer(self, reader: asyncio.StreamReader, peer: Peer) -> tuple[bool, str]:
         request = await _read_request(reader)
         if isinstance(request, str):
             return False, request

@@ -22,9 +22,12 @@ the daemon: it reads through `render`.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
+import socket
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -74,9 +77,7 @@ class StatusServer:
         self._timeout_s = client_timeout_s
         self._writing = Admission(max_clients, min(PER_PEER, max_clients), budget)
         self._lingering = Admission(MAX_LINGERING, LINGER_PER_PEER, budget)
-        self._listener = Listener(
-            path, self._serve_one, self._writing, what="status", limit=READ_LIMIT
-        )
+        self._listener = Listener(path, self._accepted, self._writing, what="status")
         self._cached: tuple[float, bytes] | None = None
         # What happened to clients (the tests read them).
         self.served = 0
@@ -111,11 +112,44 @@ class StatusServer:
         self._cached = (now, data)
         return data
 
-    async def _serve_one(
-        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, peer: Peer, place: Ticket
+    def _accepted(self, conn: socket.socket, peer: Peer, place: Ticket) -> None:
+        """Answer at once: the document fits in the socket's buffer, so one send
+        writes it and the connection is closed there and then, no task made. Only
+        a document larger than the buffer, or a client that sent something (it
+        must not lose its document to a reset), goes on in a task."""
+        data = self._document()
+        try:
+            sent = conn.send(data)
+        except BlockingIOError:
+            sent = 0
+        except OSError:  # the client left already
+            place.release()
+            conn.close()
+            return
+        if sent < len(data):
+            self._listener.serve(conn, peer, place, partial(self._write_rest, data[sent:]))
+            return
+        self.served += 1
+        place.release()
+        with contextlib.suppress(OSError):
+            conn.shutdown(socket.SHUT_WR)  # the end of the stream
+        if _input_pending(conn):
+            lingering = self._lingering.admit(peer.uid)
+            if not isinstance(lingering, str):
+                self._listener.serve(conn, peer, lingering, self._linger)
+                return
+        conn.close()
+
+    async def _write_rest(
+        self,
+        rest: bytes,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        peer: Peer,
+        place: Ticket,
     ) -> None:
         try:
-            writer.write(self._document())
+            writer.write(rest)
             async with asyncio.timeout(self._timeout_s):
                 await writer.drain()
             writer.write_eof()
@@ -125,9 +159,20 @@ class StatusServer:
             writer.transport.abort()
             return
         place.release()  # written: lingering has its own bound
-        await self._linger(reader, peer)
+        lingering = self._lingering.admit(peer.uid)
+        if not isinstance(lingering, str):
+            try:
+                await self._linger(reader, writer, peer, lingering)
+            finally:
+                lingering.release()
 
-    async def _linger(self, reader: asyncio.StreamReader, peer: Peer) -> None:
+    async def _linger(
+        self,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        peer: Peer,
+        place: Ticket,
+    ) -> None:
         """Wait (bounded) for the client to close before closing our end.
 
         A unix socket closed with unread input resets the connection, and the client
@@ -137,9 +182,6 @@ class StatusServer:
         one user (each holds a file descriptor). A client that sends nothing is
         unaffected by the limits.
         """
-        place = self._lingering.admit(peer.uid)
-        if isinstance(place, str):
-            return
         try:
             async with asyncio.timeout(self._timeout_s):
                 discarded = 0
@@ -147,8 +189,14 @@ class StatusServer:
                     discarded += len(chunk)
         except (TimeoutError, OSError):
             pass
-        finally:
-            place.release()
+
+
+def _input_pending(conn: socket.socket) -> bool:
+    """Whether the client has sent something we have not read (not its close)."""
+    try:
+        return bool(conn.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT))
+    except OSError:  # nothing yet (BlockingIOError), or gone
+        return False
 
 
 async def serve_status(
