@@ -42,9 +42,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmarks.daemon import REPO, daemon_config, drain, percentile, read_exactly
+from benchmarks.daemon import REPO, daemon_config, drain, percentile
 from benchmarks.daemon import wait_first_answer as first_answer
-from cc_daemon.core.protocol import ProbePositionRequest, encode
+from benchmarks.status_flood import latencies
 from cc_daemon.sim.pty import PtyPair
 
 HELD = 1100
@@ -62,18 +62,6 @@ NOFILE_1024 = (
 )
 
 Body = Callable[[threading.Event, dict[str, int]], None]
-
-
-def latencies(fd: int, seconds: float) -> list[float]:
-    frame = encode(ProbePositionRequest(72))
-    out: list[float] = []
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        os.write(fd, frame)
-        began = time.perf_counter_ns()
-        read_exactly(fd, 8, 5.0)
-        out.append((time.perf_counter_ns() - began) / 1e6)
-    return out
 
 
 def connect(path: Path) -> socket.socket:
@@ -177,7 +165,7 @@ class Attack:
 
     def __exit__(self, *_: object) -> None:
         assert self._proc is not None
-        out, _ = self._proc.communicate(timeout=60)
+        out, _err = self._proc.communicate(timeout=60)
         self.tally = json.loads(out)
 
 

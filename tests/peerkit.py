@@ -103,6 +103,31 @@ def as_user(
     )
 
 
+@contextlib.contextmanager
+def acting(user: User, action: str, *args: str) -> Iterator[str]:
+    """tests/as_user.py ACTION ARGS as `user` in the background (`serve`, `hold`):
+    its `ready` line once it is, then stopped by closing its stdin."""
+    proc = subprocess.Popen(
+        as_user_command(user, action, *args),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=as_user_env(),
+        cwd="/",
+    )
+    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
+    try:
+        ready = proc.stdout.readline()
+        assert ready.startswith("ready"), proc.stderr.read()
+        yield ready
+    finally:
+        proc.stdin.close()
+        proc.wait(30)
+        proc.stdout.close()
+        proc.stderr.close()
+
+
 def as_user_command(user: User, action: str, *args: str) -> list[str]:
     return [sys.executable, "-m", "tests.as_user", str(user.uid), user.gids, action, *args]
 

@@ -1,7 +1,8 @@
 """The sockets' bounds and what they keep (issue 27), on real sockets in-process.
 
 The control socket: its caps (per user, in all, a request rate), a line too long
-answered with an error, the release reason stored printable. The status
+answered with an error, the release reason kept printable (and in the journal:
+tests/test_stranded.py). The status
 socket: descriptors kept in reserve, a document nested too deep refused in one
 line. Where a socket may be: never in a directory another user could write.
 """
@@ -13,24 +14,15 @@ import contextlib
 import json
 import os
 import socket
-import sqlite3
 import threading
 from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from cc_daemon.cli.app import main
 from cc_daemon.daemon.control_server import ControlServer
 from cc_daemon.daemon.status_server import StatusServer
-from cc_daemon.sim.drum import DrumFaults
-from cc_daemon.sim.port import FramePort
-from cc_daemon.sim.pty import PtyPair
-from tests.daemonkit import station
-from tests.gpiokit import gpio_rig
-from tests.test_gpio_daemon import Boat, _settings
-from tests.test_stranded import _until
 
 Asked = list[tuple[str, str]]
 
@@ -275,46 +267,6 @@ def test_status_path_in_tmp_is_refused_at_start(tmp_path: Path) -> None:
         " only the daemon's user may write, or leave it unset\n"
     )
     assert not (tmp_path / "journal.db").exists()
-
-
-def _events(db: Path, kind: str) -> list[dict[str, Any]]:
-    with sqlite3.connect(db) as conn:
-        rows = conn.execute("SELECT detail_json FROM events WHERE kind = ?", (kind,)).fetchall()
-    return [json.loads(detail) for (detail,) in rows]
-
-
-async def test_the_journal_keeps_the_release_reason_printable(tmp_path: Path) -> None:
-    # A probe jammed at 1.5 m hauling in: stranded. The release comes over the raw
-    # socket, with a terminal's escape, a carriage return, a NUL and a bidi override.
-    status_path = tmp_path / "run" / "status.sock"
-    status_path.parent.mkdir()
-    settings = _settings(tmp_path, tmp_path / "tty")
-    settings = settings.model_copy(
-        update={"status": settings.status.model_copy(update={"path": status_path})}
-    )
-    control = status_path.with_name("control.sock")
-    async with gpio_rig(faults=DrumFaults(jam_in_at_m=1.5)) as rig:
-        with PtyPair(tmp_path / "tty") as pty:
-            from cc_daemon.daemon.service import Daemon
-
-            daemon = Daemon(settings, winch=rig.winch)
-            port = await FramePort.over_fd(pty.master_fd)
-            task = asyncio.create_task(daemon.run())
-            await asyncio.wait_for(daemon.ready.wait(), 5)
-            await port.send(station())
-            await _until(Boat(daemon, port, task), "stranded", 15)
-            line = "release seen\x1b]0;pwned\x07 on deck\r\x00\u202eevil\n".encode()
-            answer = json.loads(await asyncio.to_thread(ask, control, line))
-            assert answer["ok"] is True, answer
-            daemon.request_shutdown()
-            await asyncio.wait_for(task, 10)
-            await port.close()
-    kept = "seen\\x1b]0;pwned\\x07 on deck\\x0d\\x00\\u202eevil"
-    assert _events(tmp_path / "j.db", "operator_release")[0]["reason"] == kept
-    with sqlite3.connect(tmp_path / "j.db") as conn:
-        [(reason,)] = conn.execute("SELECT reason FROM casts").fetchall()
-    assert reason == f"released by an operator: {kept}"
-    assert all(ch.isprintable() for ch in reason)
 
 
 def test_a_journal_in_a_shared_directory_has_its_sockets_in_the_private_one(

@@ -33,9 +33,8 @@ from tests.peerkit import (
     REPO,
     User,
     Users,
+    acting,
     as_user,
-    as_user_command,
-    as_user_env,
     entered_dir,
     session_users,
 )
@@ -64,24 +63,8 @@ def mallory(users: Users) -> User:
 @contextlib.contextmanager
 def impostor(user: User, path: Path, text: str) -> Iterator[None]:
     """`user` answering every connection on `path` with `text`."""
-    proc = subprocess.Popen(
-        as_user_command(user, "serve", str(path), text),
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=as_user_env(),
-        cwd="/",
-    )
-    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
-    try:
-        assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
+    with acting(user, "serve", str(path), text):
         yield
-    finally:
-        proc.stdin.close()
-        proc.wait(10)
-        proc.stdout.close()
-        proc.stderr.close()
 
 
 @contextlib.asynccontextmanager
@@ -214,8 +197,8 @@ async def test_a_user_outside_the_group_gets_one_line_and_the_winch_is_not_drive
     # itself: the test can see a winch driven.
     (open_dir / "empty").mkdir(mode=0o755)
     config.write_text(f'[status]\npath = "{open_dir / "empty" / "status.sock"}"\n')
-    args = ("--watch-drum", "winch", "home", "--mock", "--config", str(config))
-    done = await asyncio.to_thread(as_user, mallory, "cli", *args)
+    home = ("--watch-drum", "winch", "home", "--mock", "--config", str(config))
+    done = await asyncio.to_thread(as_user, mallory, "cli", *home)
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stderr.split("drum: ")[1])["built"] is True
 
@@ -319,25 +302,8 @@ def descriptors(pid: int) -> int:
 @contextlib.contextmanager
 def holding(user: User, path: Path, count: int) -> Iterator[int]:
     """`user` holding `count` connections to `path` (those that connected: yielded)."""
-    proc = subprocess.Popen(
-        as_user_command(user, "hold", str(path), str(count)),
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=as_user_env(),
-        cwd="/",
-    )
-    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
-    try:
-        line = proc.stdout.readline().split()
-        assert line[:1] == ["ready"], proc.stderr.read()
-        yield int(line[1])
-    finally:
-        proc.stdin.close()
-        proc.wait(30)
-        proc.stdout.close()
-        proc.stderr.close()
+    with acting(user, "hold", str(path), str(count)) as ready:
+        yield int(ready.split()[1])
 
 
 class PeakDescriptors:
