@@ -291,3 +291,25 @@ def test_a_journal_in_a_shared_directory_has_its_sockets_in_the_private_one(
     # A journal in a directory of one's own: beside it, as before.
     (tmp_path / "own").mkdir()
     assert hand_socket_path(tmp_path / "own" / "j.db", env) == tmp_path / "own" / "j.db.status.sock"
+
+
+def test_refusals_are_said_at_once_then_once_a_minute_with_their_count() -> None:
+    import structlog
+
+    from cc_daemon.daemon.socket_listener import Refusals
+
+    now = [100.0]
+    refusals = Refusals("control", clock=lambda: now[0])
+    with structlog.testing.capture_logs() as logs:
+        for _ in range(1000):  # a flood within the minute: one line, then counted
+            refusals.add(1001, "4 connections of this user already")
+            now[0] += 0.01
+        assert [e["event"] for e in logs] == ["control socket: connection refused"]
+        now[0] = 161.0
+        refusals.add(1001, "4 connections of this user already")  # the minute is over
+        assert logs[-1]["event"] == "control socket: connections refused"
+        assert (logs[-1]["count"], logs[-1]["uid"]) == (1000, 1001)
+        refusals.add(1002, "not authorised")
+        refusals.flush()  # the socket closes: what is held is said
+    assert (logs[-1]["uid"], logs[-1]["count"]) == (1002, 1) and len(logs) == 3
+    assert refusals.total == 1002

@@ -1,7 +1,7 @@
 """Where the status socket is: one rule for the daemon that binds it and the tools
 that ask it. It reads the environment and the settings, and looks at directories'
 owners and modes; it never creates, opens or changes a file (the daemon makes
-the private directory, `status_server`).
+the private directory, `daemon.socket_listener`).
 
 The rule, in order:
 1. `status.path`, when configured: the daemon binds it, `status` asks it.
@@ -85,7 +85,7 @@ def shared_directory(path: Path, trusted: Collection[int] | None = None) -> str 
 def private_directory(env: Mapping[str, str] | None = None) -> Path:
     """The user's own directory for sockets: `$XDG_RUNTIME_DIR/cc-daemon`, else
     `$TMPDIR/cc-daemon-<uid>` (/tmp by default). The daemon makes it 0700 and
-    refuses one that is not its own (`status_server`)."""
+    refuses one that is not its own (`daemon.socket_listener`)."""
     environ = _env(env)
     runtime = environ.get("XDG_RUNTIME_DIR", "")
     if runtime:

@@ -10,8 +10,8 @@ write its journal and spill files, or talk to the sonde. So:
 - `DescriptorBudget`, shared by every socket, admits a connection only while more
   than `RESERVE` descriptors would stay free after it; it counts the process's
   open descriptors at most once a second;
-- `RequestRate` bounds the requests one peer may make a minute (each may log,
-  journal and move the winch).
+- `RequestRate` bounds the connections one peer may make a minute (on the
+  control socket each request may log, journal and move the winch).
 
 It never blocks, never opens more than one descriptor (to count them) and never
 logs: the sockets say what they refused.
@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 # Descriptors no socket client may take: the serial port (reopened after a loss),
 # the journal with its -wal and -shm, SQLite's temporary files, spill files, the
 # sonde's and sonar's ports, the GPIO chip, the log. The daemon itself holds about
-# 30 (measured with ls /proc/PID/fd); these cover what it may open on top.
+# 20 with the simulated winch (benchmarks/socket_attacks.py prints its most); these
+# cover what it may open on top.
 RESERVE = 64
 _RECOUNT_S = 1.0
 

@@ -13,12 +13,14 @@ Who may use it: the socket is mode 0660 (the daemon's user and its group, the
 service's admin group), and the peer's credentials are checked again, from the
 kernel (SO_PEERCRED, SO_PEERGROUPS: no name look-up that could fail when
 descriptors run short): root, the daemon's own user, or a member of the
-socket's group. Every connection gets an answer, a refusal included, and the
-daemon reads the request before it closes, so the answer is never lost to a
-reset. The bounds: `MAX_CONNECTIONS` at once, `PER_PEER` of one user, within
-the descriptors the daemon keeps (`admission`); `REQUEST_BURST` connections of
-one user at once, then `REQUESTS_PER_MINUTE`; `ACCEPTS_PER_S` accepted in all;
-one line of `control_request.MAX_REQUEST` bytes within `REQUEST_TIMEOUT_S`.
+socket's group. Every connection gets a one-line answer, a refusal included
+(sent as it is accepted; the client reads it even when its own request could not
+be sent: `cli.daemon_socket.exchange`); an admitted request is read before the
+answer, and what follows it is drained before closing. The bounds:
+`MAX_CONNECTIONS` at once, `PER_PEER` of one user, within the descriptors the
+daemon keeps (`admission`); `REQUEST_BURST` connections of one user at once,
+then `REQUESTS_PER_MINUTE`; `ACCEPTS_PER_S` accepted in all; one line of
+`control_request.MAX_REQUEST` bytes within `REQUEST_TIMEOUT_S`.
 Whom the access rule refuses is answered at once, before any of these counts it.
 A release or a haul is logged with the peer's uid and pid and journaled by the
 daemon (`operator_release`, `operator_haul_in`); refusals are logged with the
@@ -138,6 +140,7 @@ class ControlServer:
             accepts_per_s=ACCEPTS_PER_S,
         )
         self._group = ""
+        self._gid = -1
 
     @property
     def path(self) -> Path:
@@ -146,7 +149,8 @@ class ControlServer:
     async def start(self) -> None:
         await self._listener.start()
         # Resolved now, while descriptors are plenty: the refusal names the group.
-        self._group = _group_name(os.stat(self.path).st_gid)
+        self._gid = os.stat(self.path).st_gid
+        self._group = _group_name(self._gid)
         _log.info("control socket open", path=str(self.path))
 
     async def close(self) -> None:
@@ -158,10 +162,9 @@ class ControlServer:
     def _vet(self, conn: socket.socket, peer: Peer) -> tuple[str, bytes] | None:
         """Refuse at once, before any cap or rate counts it, whom the socket's
         access rule refuses: the answer is always "not authorised"."""
-        gid = os.stat(self.path).st_gid
-        if authorised(peer, gid, peer_groups(conn)):
+        if authorised(peer, self._gid, peer_groups(conn)):
             return None
-        message = f"not authorised: root or group {self._group or gid} only"
+        message = f"not authorised: root or group {self._group} only"
         return "not authorised", _answer_line(False, message)
 
     def _accepted(self, conn: socket.socket, peer: Peer, place: Ticket) -> None:
