@@ -330,6 +330,7 @@ class PeakDescriptors:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(120)  # the control socket accepts 100 a second: 11 s of holding alone
 async def test_a_member_holding_1100_connections_takes_no_descriptor_the_daemon_needs(
     users: Users, open_dir: Path, tmp_path: Path
 ) -> None:
