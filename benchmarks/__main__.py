@@ -20,6 +20,7 @@ MODULES = [
     "journal",
     "daemon",
     "status_flood",
+    "socket_attacks",
     "sonde",
     "winch",
     "storm",

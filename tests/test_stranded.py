@@ -126,6 +126,8 @@ async def test_a_winch_that_failed_to_home_refuses_every_cast_with_r_l(tmp_path:
 async def test_an_operator_releases_a_station_the_winch_cannot_verify(tmp_path: Path) -> None:
     # A probe jammed at 1.5 m hauling in: stranded, R-L. The operator has seen it on
     # board (say the switch is broken): `cc-daemon release` through the control socket.
+    # Its reason carries a terminal's escape and a bidi override (issue 27): kept as
+    # printable escapes wherever it is stored.
     status_path = tmp_path / "run" / "status.sock"
     status_path.parent.mkdir()
     settings = _settings(tmp_path, tmp_path / "tty")
@@ -140,7 +142,8 @@ async def test_an_operator_releases_a_station_the_winch_cannot_verify(tmp_path: 
             task = asyncio.create_task(daemon.run())
             await asyncio.wait_for(daemon.ready.wait(), 5)
             boat = Boat(daemon, port, task)
-            args = ["release", "--reason", "probe seen on deck", "--socket", str(control)]
+            reason = "probe seen on deck \x1b]0;pwned\x07 \u202eevil"
+            args = ["release", "--reason", reason, "--socket", str(control)]
             for _ in range(50):  # the control socket is bound by its own task
                 if control.exists():
                     break
@@ -160,11 +163,13 @@ async def test_an_operator_releases_a_station_the_winch_cannot_verify(tmp_path: 
             # The winch still cannot verify home: the exit says so.
             assert await asyncio.wait_for(task, 10) == EXIT_PROBE_MAY_BE_DOWN
             await port.close()
+    kept = "probe seen on deck \\x1b]0;pwned\\x07 \\u202eevil"
     events = dict(_events(tmp_path))
-    assert "probe seen on deck" in events["operator_release"]
+    assert json.loads(events["operator_release"])["reason"] == kept
     with sqlite3.connect(tmp_path / "j.db") as db:
         [(outcome, reason)] = db.execute("SELECT outcome, reason FROM casts").fetchall()
-    assert outcome == "aborted" and reason == "released by an operator: probe seen on deck"
+    assert outcome == "aborted" and reason == f"released by an operator: {kept}"
+    assert reason.isprintable()
 
 
 def test_only_root_the_daemon_s_user_or_the_socket_s_group_may_release() -> None:

@@ -34,6 +34,9 @@ def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     )
     p.add_argument("action", choices=("status", "home", "down", "up"), help="what to do")
     p.add_argument("--config", type=Path, help="TOML configuration file")
+    p.add_argument(
+        "--db", type=Path, help="home: the journal of a daemon started by hand with --db"
+    )
     amount = p.add_mutually_exclusive_group()
     amount.add_argument("--seconds", type=float, metavar="S", help="run for S seconds (5)")
     amount.add_argument("--metres", type=float, metavar="M", help="run for M metres of line")
@@ -48,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
     from cc_daemon.ground.logsetup import configure_logging
 
     overrides: dict[str, Any] = {"winch": {"backend": "gpio"}}
+    if args.db is not None:
+        overrides["store"] = {"path": args.db}
     if args.mock:
         overrides["winch"]["gpio"] = {"pin_factory": "mock"}
     settings = load_settings(args.config, overrides)
@@ -68,18 +73,28 @@ def run(args: argparse.Namespace) -> int:
 
 def _home_through_daemon(settings: Any) -> int | None:
     """With the daemon running (its control socket answers), it owns the pins: ask
-    it to haul a stranded probe in. None: no daemon, drive the winch here."""
-    from cc_daemon.cli.release import ask_daemon
-    from cc_daemon.config.statuspaths import client_socket_path
-    from cc_daemon.daemon.control_server import control_path
+    it to haul a stranded probe in. None: no daemon listens, drive the winch here.
 
-    path = control_path(client_socket_path(settings.status, journal=settings.store.path))
+    Only a socket that is not there, or that nobody listens on, means no daemon. A
+    refusal (permission denied, not authorised, a socket someone else answers, no
+    answer in time) means a daemon may be running: the winch is left to it, never
+    driven by a second owner of its motor."""
+    from cc_daemon.cli.daemon_socket import NoDaemon, SocketTrouble
+    from cc_daemon.cli.release import ask_daemon, control_socket
+
+    path = control_socket(settings, None)
     try:
-        answer = ask_daemon(path, "home")
-    except OSError:
+        ok, message = ask_daemon(path, b"home")
+    except NoDaemon:
         return None
-    print(f"cc-daemon winch home (through the running daemon): {answer['message']}")
-    return EXIT_OK if answer["ok"] else EXIT_FAULT
+    except SocketTrouble as exc:
+        print(
+            f"cc-daemon winch home: {exc}; the winch was not driven (a daemon may own it)",
+            file=sys.stderr,
+        )
+        return EXIT_FAULT
+    print(f"cc-daemon winch home (through the running daemon): {message}")
+    return EXIT_OK if ok else EXIT_FAULT
 
 
 def _line(winch: Any, cfg: Any) -> str:

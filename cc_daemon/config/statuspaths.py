@@ -1,5 +1,7 @@
 """Where the status socket is: one rule for the daemon that binds it and the tools
-that ask it. It reads the environment and the settings; it never touches a file.
+that ask it. It reads the environment and the settings, and looks at directories'
+owners and modes; it never creates, opens or changes a file (the daemon makes
+the private directory, `daemon.socket_listener`).
 
 The rule, in order:
 1. `status.path`, when configured: the daemon binds it, `status` asks it.
@@ -12,6 +14,13 @@ The rule, in order:
    `$XDG_RUNTIME_DIR/cc-daemon/status.sock`; with no runtime directory, beside
    the default journal (`./cc-daemon.db.status.sock`).
 
+Beside a journal whose directory someone else could write (`shared_directory`:
+a world-writable one such as /tmp, or one of another user's), a socket could be
+bound first, or replaced, by anyone: there the by-hand rules use the user's
+private directory instead (`private_directory`: `$XDG_RUNTIME_DIR/cc-daemon`,
+else `$TMPDIR/cc-daemon-<uid>`, made 0700), the socket named after the journal
+(`<name>-<hash of its path>.status.sock`, `private_socket`).
+
 A path too long for a Unix socket (107 bytes) is passed over for the next. A
 tool cannot know whether the daemon is a service, so it asks the first of
 `client_socket_paths` that exists: the by-hand path from the same
@@ -20,8 +29,10 @@ configuration, then the service's.
 
 from __future__ import annotations
 
+import hashlib
 import os
-from collections.abc import Mapping
+import stat
+from collections.abc import Collection, Mapping
 from pathlib import Path
 
 from cc_daemon.config import StatusSettings
@@ -29,8 +40,10 @@ from cc_daemon.config import StatusSettings
 SOCKET_NAME = "status.sock"
 # What the installed unit's RuntimeDirectory=cc-daemon gives the daemon.
 SERVICE_SOCKET = Path("/run/cc-daemon") / SOCKET_NAME
+SERVICE_USER = "cc-daemon"  # the installed unit's User= (systemd/cc-daemon.sysusers)
 DEFAULT_JOURNAL = Path("cc-daemon.db")  # the journal's own default outside systemd
 _SUN_PATH_MAX = 107  # sockaddr_un.sun_path is 108 bytes, NUL included
+_NAME_MAX = 40  # of a journal's name, in a private socket's name
 
 
 def _fits(path: Path) -> bool:
@@ -41,16 +54,72 @@ def _env(env: Mapping[str, str] | None) -> Mapping[str, str]:
     return os.environ if env is None else env
 
 
+def shared_directory(path: Path, trusted: Collection[int] | None = None) -> str | None:
+    """Why a socket at `path` could be bound first, or replaced, by a user not in
+    `trusted` (default: root and ourselves), or None if it cannot.
+
+    Its directory (symbolic links followed) must belong to a trusted user and be
+    writable by no one else: not world-writable, the sticky /tmp included (anyone
+    may create a name there). Each directory above it must belong to a trusted
+    user too, and be world-writable only if sticky (then nobody else can rename
+    what is inside). A directory that cannot be looked at, or is not there yet,
+    is no reason: binding or connecting says what is wrong with it.
+    """
+    uids = {0, os.geteuid()} if trusted is None else set(trusted)
+    directory = Path(os.path.realpath(os.path.abspath(path.parent)))
+    first = True
+    for each in (directory, *directory.parents):
+        try:
+            info = os.stat(each)
+        except OSError:
+            return None
+        mode = info.st_mode
+        if mode & stat.S_IWOTH and (first or not mode & stat.S_ISVTX):
+            return f"{each} may be written by every user"
+        if info.st_uid not in uids:
+            return f"{each} belongs to another user (uid {info.st_uid})"
+        first = False
+    return None
+
+
+def private_directory(env: Mapping[str, str] | None = None) -> Path:
+    """The user's own directory for sockets: `$XDG_RUNTIME_DIR/cc-daemon`, else
+    `$TMPDIR/cc-daemon-<uid>` (/tmp by default). The daemon makes it 0700 and
+    refuses one that is not its own (`daemon.socket_listener`)."""
+    environ = _env(env)
+    runtime = environ.get("XDG_RUNTIME_DIR", "")
+    if runtime:
+        return Path(runtime) / "cc-daemon"
+    return Path(environ.get("TMPDIR") or "/tmp") / f"cc-daemon-{os.geteuid()}"
+
+
+def private_socket(journal: Path, env: Mapping[str, str] | None = None) -> Path:
+    """The socket of a daemon whose journal's directory is shared: in the private
+    directory, named after the journal (its name, cut, and a hash of its path)."""
+    absolute = Path(journal).absolute()
+    digest = hashlib.sha256(os.fsencode(absolute)).hexdigest()[:12]
+    return private_directory(env) / f"{absolute.name[:_NAME_MAX]}-{digest}.{SOCKET_NAME}"
+
+
+def _beside(journal: Path, env: Mapping[str, str] | None) -> Path:
+    path = Path(f"{Path(journal).absolute()}.{SOCKET_NAME}")
+    return private_socket(journal, env) if shared_directory(path) is not None else path
+
+
 def hand_socket_path(journal: Path | None, env: Mapping[str, str] | None = None) -> Path | None:
     """Where a daemon started by hand binds (rules 3 and 4); None if nothing fits."""
+    return next((c for c in _hand_candidates(journal, env) if _fits(c)), None)
+
+
+def _hand_candidates(journal: Path | None, env: Mapping[str, str] | None) -> list[Path]:
     candidates: list[Path] = []
     if journal is not None:
-        candidates.append(Path(f"{Path(journal).absolute()}.{SOCKET_NAME}"))
+        candidates.append(_beside(journal, env))
     runtime = _env(env).get("XDG_RUNTIME_DIR", "")
     if runtime:
         candidates.append(Path(runtime) / "cc-daemon" / SOCKET_NAME)
-    candidates.append(Path(f"{DEFAULT_JOURNAL.absolute()}.{SOCKET_NAME}"))
-    return next((c for c in candidates if _fits(c)), None)
+    candidates.append(_beside(DEFAULT_JOURNAL, env))
+    return candidates
 
 
 def daemon_socket_path(
@@ -78,11 +147,24 @@ def client_socket_paths(
     return [hand, SERVICE_SOCKET] if hand is not None else [SERVICE_SOCKET]
 
 
+def present(path: Path) -> bool:
+    """Whether something is at `path`, or may be: a directory we may not search (the
+    service's, 0750, to a user outside its group) hides it, and asking is what
+    says "not authorised". Never raises."""
+    try:
+        path.lstat()
+    except PermissionError:
+        return True
+    except OSError:
+        return False
+    return True
+
+
 def client_socket_path(
     settings: StatusSettings | None,
     env: Mapping[str, str] | None = None,
     journal: Path | None = None,
 ) -> Path:
-    """The first of `client_socket_paths` that exists, else the service's."""
+    """The first of `client_socket_paths` that is there, else the service's."""
     paths = client_socket_paths(settings, env, journal)
-    return next((p for p in paths if p.exists()), paths[-1])
+    return next((p for p in paths if present(p)), paths[-1])

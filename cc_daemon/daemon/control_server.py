@@ -10,50 +10,66 @@ while the daemon runs): the station ends, with R-F, only if the winch then
 verifies home.
 
 Who may use it: the socket is mode 0660 (the daemon's user and its group, the
-service's admin group), and the peer's credentials (SO_PEERCRED) are checked
-again: root, the daemon's own user, or a member of the socket's group. Every
-request, refused or not, is logged with the peer's uid and pid; a release is
-journaled by the daemon (`operator_release`).
+service's admin group), and the peer's credentials are checked again, from the
+kernel (SO_PEERCRED, SO_PEERGROUPS: no name look-up that could fail when
+descriptors run short): root, the daemon's own user, or a member of the
+socket's group. Every connection gets a one-line answer, a refusal included
+(sent as it is accepted; the client reads it even when its own request could not
+be sent: `cli.daemon_socket.exchange`); an admitted request is read before the
+answer, and what follows it is drained before closing. The bounds:
+`MAX_CONNECTIONS` at once, `PER_PEER` of one user, within the descriptors the
+daemon keeps (`admission`); `REQUEST_BURST` connections of one user at once,
+then `REQUESTS_PER_MINUTE`; `ACCEPTS_PER_S` accepted in all; one line of
+`control_request.MAX_REQUEST` bytes within `REQUEST_TIMEOUT_S`.
+Whom the access rule refuses is answered at once, before any of these counts it.
+A release or a haul is logged with the peer's uid and pid and journaled by the
+daemon (`operator_release`, `operator_haul_in`); refusals are logged with the
+uid, once a minute with their count (`socket_listener.Refusals`).
 
 It must never block the event loop or raise into the daemon; it changes nothing
-itself: it hands the request to `release` and reports its answer.
+itself: it hands the request to `release` or `home` and reports their answer.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import grp
 import json
 import os
 import pwd
 import socket
-import struct
+import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
 import structlog
 
 from cc_daemon.config.statuspaths import daemon_socket_path
-from cc_daemon.daemon.status_server import SOCKET_MODE, _clear_stale, serve_until_cancelled
+from cc_daemon.daemon.admission import SHARED, Admission, DescriptorBudget, RequestRate, Ticket
+from cc_daemon.daemon.control_request import MAX_REQUEST, Request, parse
+from cc_daemon.daemon.socket_listener import Listener, directory_problem, serve_until_cancelled
+from cc_daemon.ground.peercred import Peer, peer_groups
 
 if TYPE_CHECKING:
     from cc_daemon.config import StatusSettings
 
+__all__ = ["ControlServer", "Peer", "authorised", "control_path", "serve_control"]
+
 _log = structlog.get_logger("cc_daemon.control")
 
 CONTROL_NAME = "control.sock"
-MAX_REQUEST = 512  # "release " and a reason: a line, never more
 REQUEST_TIMEOUT_S = 2.0
-_PEERCRED = struct.Struct("3i")
-
-
-class Peer(NamedTuple):
-    pid: int
-    uid: int
-    gid: int
-
+MAX_CONNECTIONS = 16
+PER_PEER = 4
+REQUESTS_PER_MINUTE = 10
+REQUEST_BURST = 5
+# Connections accepted a second, refused ones included: people use this socket, a
+# few times a minute; a client connecting in a loop, or pushing a megabyte with
+# each connection, is slowed down to this (benchmarks/socket_attacks.py).
+ACCEPTS_PER_S = 100.0
+MAX_DISCARD = 64 * 1024  # read after the answer, so that closing does not reset it
+_GROUPS_TTL_S = 60.0
 
 # (peer, reason) -> (done, message)
 Release = Callable[[Peer, str], tuple[bool, str]]
@@ -69,81 +85,134 @@ def control_path(status_path: Path) -> Path:
     return status_path.with_name(f"{name}.{CONTROL_NAME}")
 
 
-def _peer(writer: asyncio.StreamWriter) -> Peer | None:
-    sock = writer.get_extra_info("socket")
-    if sock is None:
-        return None
-    raw = sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, _PEERCRED.size)
-    return Peer(*_PEERCRED.unpack(raw))
-
-
-def authorised(peer: Peer, socket_gid: int) -> bool:
-    """Root, the daemon's own user, or a member of the socket's group."""
+def authorised(peer: Peer, socket_gid: int, groups: frozenset[int] | None = None) -> bool:
+    """Root, the daemon's own user, or a member of the socket's group: by the peer's
+    primary group, its supplementary `groups` (SO_PEERGROUPS), or where the kernel
+    could not say (None), by its name's groups (looked up, then kept a minute)."""
     if peer.uid in (0, os.getuid()) or peer.gid == socket_gid:
         return True
+    if groups is None:
+        groups = _named_groups(peer.uid, peer.gid)
+    return socket_gid in groups
+
+
+_groups_cache: dict[tuple[int, int], tuple[float, frozenset[int]]] = {}
+
+
+def _named_groups(uid: int, gid: int) -> frozenset[int]:
+    now = time.monotonic()
+    cached = _groups_cache.get((uid, gid))
+    if cached is not None and now - cached[0] < _GROUPS_TTL_S:
+        return cached[1]
     try:
-        name = pwd.getpwuid(peer.uid).pw_name
-        return socket_gid in os.getgrouplist(name, peer.gid)
-    except KeyError:
-        return False
+        groups = frozenset(os.getgrouplist(pwd.getpwuid(uid).pw_name, gid))
+    except (KeyError, OSError):
+        return frozenset()  # not kept: a look-up that failed may succeed next time
+    if len(_groups_cache) > 256:
+        _groups_cache.clear()
+    _groups_cache[(uid, gid)] = (now, groups)
+    return groups
+
+
+def _answer_line(ok: bool, message: str) -> bytes:
+    return json.dumps({"ok": ok, "message": message}).encode() + b"\n"
 
 
 class ControlServer:
-    def __init__(self, path: Path, release: Release, home: Release | None = None) -> None:
-        self.path = path
+    def __init__(
+        self,
+        path: Path,
+        release: Release,
+        home: Release | None = None,
+        *,
+        budget: DescriptorBudget = SHARED,
+    ) -> None:
         self._release = release
         self._home = home
-        self._server: asyncio.Server | None = None
+        rate = RequestRate(REQUESTS_PER_MINUTE, REQUEST_BURST)
+        self._listener = Listener(
+            path,
+            self._accepted,
+            Admission(MAX_CONNECTIONS, PER_PEER, budget, rate=rate),
+            what="control",
+            refuse=self._busy,
+            vet=self._vet,
+            accepts_per_s=ACCEPTS_PER_S,
+        )
+        self._group = ""
+        self._gid = -1
+
+    @property
+    def path(self) -> Path:
+        return self._listener.path
 
     async def start(self) -> None:
-        _clear_stale(self.path)
-        self._server = await asyncio.start_unix_server(self._serve_one, path=str(self.path))
-        os.chmod(self.path, SOCKET_MODE)
+        await self._listener.start()
+        # Resolved now, while descriptors are plenty: the refusal names the group.
+        self._gid = os.stat(self.path).st_gid
+        self._group = _group_name(self._gid)
         _log.info("control socket open", path=str(self.path))
 
     async def close(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            with contextlib.suppress(FileNotFoundError):
-                self.path.unlink()
+        await self._listener.close()
 
-    async def _serve_one(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    def _busy(self, peer: Peer, why: str) -> bytes:
+        return _answer_line(False, f"busy ({why} on the control socket): try again")
+
+    def _vet(self, conn: socket.socket, peer: Peer) -> tuple[str, bytes] | None:
+        """Refuse at once, before any cap or rate counts it, whom the socket's
+        access rule refuses: the answer is always "not authorised"."""
+        if authorised(peer, self._gid, peer_groups(conn)):
+            return None
+        message = f"not authorised: root or group {self._group} only"
+        return "not authorised", _answer_line(False, message)
+
+    def _accepted(self, conn: socket.socket, peer: Peer, place: Ticket) -> None:
+        self._listener.serve(conn, peer, place, self._serve_one, limit=MAX_REQUEST + 1)
+
+    async def _serve_one(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, peer: Peer, _: Ticket
+    ) -> None:
+        ok, message = await self._answer(reader, peer)
+        writer.write(_answer_line(ok, message))
         try:
-            answer = await self._answer(reader, writer)
-            writer.write(json.dumps(answer).encode() + b"\n")
-            await writer.drain()
-        except Exception as exc:  # a client's trouble never reaches the daemon
-            _log.warning("control request failed", error=f"{type(exc).__name__}: {exc}")
-        finally:
-            writer.close()
+            async with asyncio.timeout(REQUEST_TIMEOUT_S):
+                await writer.drain()
+                writer.write_eof()
+                discarded = 0
+                while discarded <= MAX_DISCARD and (chunk := await reader.read(4096)):
+                    discarded += len(chunk)
+        except (TimeoutError, OSError):
+            pass
 
-    async def _answer(
-        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
-    ) -> dict[str, object]:
-        peer = _peer(writer)
-        gid = os.stat(self.path).st_gid
-        if peer is None or not authorised(peer, gid):
-            group = _group_name(gid)
-            _log.warning("control request refused: not authorised", peer=peer)
-            return {"ok": False, "message": f"not authorised: root or group {group} only"}
+    async def _answer(self, reader: asyncio.StreamReader, peer: Peer) -> tuple[bool, str]:
+        request = await _read_request(reader)
+        if isinstance(request, str):
+            return False, request
+        if request.verb == "home" and self._home is not None:
+            return self._home(peer, request.reason or "operator request")
+        if request.verb == "release":
+            return self._release(peer, request.reason)
+        return False, "home: this daemon has no winch to haul in"
+
+
+async def _read_request(reader: asyncio.StreamReader) -> Request | str:
+    try:
         async with asyncio.timeout(REQUEST_TIMEOUT_S):
-            line = await reader.readline()
-        text = line[:MAX_REQUEST].decode("utf-8", "replace").strip()
-        verb, _, reason = text.partition(" ")
-        reason = reason.strip()
-        if verb == "home" and self._home is not None:
-            ok, message = self._home(peer, reason or "operator request")
-        elif verb == "release" and reason:
-            ok, message = self._release(peer, reason)
-        else:
-            return {"ok": False, "message": "expected one line: release <reason>, or home"}
-        return {"ok": ok, "message": message}
+            line = await reader.readuntil(b"\n")
+    except asyncio.IncompleteReadError as exc:
+        line = exc.partial  # the client closed its end after the line, unterminated
+    except asyncio.LimitOverrunError:
+        return f"request too long: one line of at most {MAX_REQUEST} bytes"
+    except TimeoutError:
+        return f"no request within {REQUEST_TIMEOUT_S:g} s"
+    return parse(line.rstrip(b"\n"))
 
 
 def _group_name(gid: int) -> str:
     try:
         return grp.getgrgid(gid).gr_name
-    except KeyError:
+    except (KeyError, OSError):
         return str(gid)
 
 
@@ -157,7 +226,7 @@ async def serve_control(
     """The daemon's control duty, beside the status socket (none without one); a
     socket that cannot be bound (another daemon's) is said and retried, never a crash."""
     status_path = daemon_socket_path(settings, journal=journal) if settings.enabled else None
-    if status_path is None:
-        await asyncio.Future()
+    if status_path is None or directory_problem(status_path) is not None:
+        await asyncio.Future()  # the status duty says why
         return
     await serve_until_cancelled(ControlServer(control_path(status_path), release, home), "control")

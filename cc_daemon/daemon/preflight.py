@@ -3,7 +3,8 @@
 The configuration's schema (`cc_daemon.config`) cannot look at the filesystem; this
 module does, once, before the daemon opens its serial port: a `serial.port`
 that exists and is not a terminal, or a `store.path` that is a directory, a
-device, under /proc, /sys or /dev, or in a directory that does not exist, is a
+device, under /proc, /sys or /dev, or in a directory that does not exist, or a
+`status.path` in a directory another user may write (`statuspaths.shared_directory`), is a
 configuration error (exit 2, the key named as `cc_daemon.config` names keys). Then it
 opens the journal, and a journal that cannot be opened at start is an error
 too: running on with the whole survey in memory would lose it to a power cut.
@@ -22,6 +23,7 @@ from pathlib import Path
 import structlog
 
 from cc_daemon.config import Settings
+from cc_daemon.config.statuspaths import shared_directory
 from cc_daemon.core.errors import ConfigError
 from cc_daemon.daemon.simgate import backend_name, is_simulated
 from cc_daemon.store import Journal, default_store_path
@@ -125,6 +127,14 @@ def check_paths(settings: Settings) -> None:
         if store is None:
             problem = f"the default {default_store_path()} {problem}"
         lines.append(f"{settings.describe('store.path')}: {problem}")
+    status = settings.status.path
+    problem = shared_directory(status) if settings.status.enabled and status else None
+    if problem is not None:
+        lines.append(
+            f"{settings.describe('status.path')}: {problem}, so anyone could answer in the"
+            " daemon's place; choose a directory only the daemon's user may write, or leave"
+            " it unset"
+        )
     if lines:
         raise ConfigError("\n".join(_PREFIX + line for line in lines))
 

@@ -7,11 +7,13 @@ whole protocol, so a hostile client has little to work with:
   until the client closes, so the client still gets its document;
 - a slow or stalled reader is cut off after `client_timeout_s` (a document fits
   in the socket's buffer, so in practice the write completes at once);
-- beyond `max_clients` connections in progress, new ones are closed unanswered;
+- at most `max_clients` connections are written at once, `PER_PEER` of them by
+  one user; more are closed unanswered before any work is done for them
+  (`socket_listener`, `admission`: all within the descriptors the daemon keeps);
 - the document is built at most every `CACHE_S`, so a flood of connections costs
   a copy each, not a snapshot each.
 The socket is mode 0660: the daemon's user and group (the operators) only, never
-world-writable.
+world-writable, and never in a directory another user could write (`statuspaths`).
 
 It must never block the event loop, raise into the daemon, or change anything in
 the daemon: it reads through `render`.
@@ -22,37 +24,43 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import os
 import socket
-import stat
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
-from cc_daemon.config.statuspaths import daemon_socket_path
+from cc_daemon.config.statuspaths import (
+    DEFAULT_JOURNAL,
+    daemon_socket_path,
+    private_directory,
+    shared_directory,
+)
+from cc_daemon.daemon.admission import SHARED, Admission, DescriptorBudget, Ticket
+from cc_daemon.daemon.socket_listener import (
+    Listener,
+    SocketBusy,
+    directory_problem,
+    serve_until_cancelled,
+)
+from cc_daemon.ground.peercred import Peer
 
 if TYPE_CHECKING:
     from cc_daemon.config import StatusSettings
 
+__all__ = ["SocketBusy", "StatusServer", "serve_status"]
+
 _log = structlog.get_logger("cc_daemon.status")
 
-SOCKET_MODE = 0o660
 READ_LIMIT = 4096
 MAX_DISCARD = 64 * 1024
 MAX_LINGERING = 64
-# asyncio accepts up to `backlog` connections per loop iteration, then runs all
-# their handlers in the next: a small backlog keeps a flood's bursts short
-# (R-P max during 1000 connections: ~50 ms at 128, ~33 ms at 16; benchmarks/status_flood.py).
-BACKLOG = 16
+PER_PEER = 16  # connections written at once for one user (of max_clients)
+LINGER_PER_PEER = 16  # of the MAX_LINGERING
 CACHE_S = 0.2
-RETRY_BIND_S = 30.0
-
-
-class SocketBusy(OSError):
-    """Another live process already answers on the socket's path."""
 
 
 class StatusServer:
@@ -63,39 +71,33 @@ class StatusServer:
         *,
         max_clients: int = 32,
         client_timeout_s: float = 2.0,
+        budget: DescriptorBudget = SHARED,
     ) -> None:
-        self.path = path
         self._render = render
-        self._max_clients = max_clients
         self._timeout_s = client_timeout_s
-        self._active = 0
-        self._lingering = 0
+        self._writing = Admission(max_clients, min(PER_PEER, max_clients), budget)
+        self._lingering = Admission(MAX_LINGERING, LINGER_PER_PEER, budget)
+        self._listener = Listener(path, self._accepted, self._writing, what="status")
         self._cached: tuple[float, bytes] | None = None
-        self._server: asyncio.Server | None = None
-        self._inode: int | None = None
         # What happened to clients (the tests read them).
         self.served = 0
-        self.refused = 0
         self.cut_off = 0
+
+    @property
+    def path(self) -> Path:
+        return self._listener.path
+
+    @property
+    def refused(self) -> int:
+        return self._listener.refused
 
     async def start(self) -> None:
         """Bind the socket (replacing a stale one); SocketBusy if one is alive."""
-        _clear_stale(self.path)
-        self._server = await asyncio.start_unix_server(
-            self._serve_one, path=str(self.path), limit=READ_LIMIT, backlog=BACKLOG
-        )
-        # Before any client can matter: bind() gave the socket the umask's mode.
-        os.chmod(self.path, SOCKET_MODE)
-        self._inode = self.path.stat().st_ino
+        await self._listener.start()
         _log.info("status socket serving", path=str(self.path))
 
     async def close(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            self._server = None
-        with contextlib.suppress(OSError):
-            if self._inode is not None and self.path.stat().st_ino == self._inode:
-                self.path.unlink()  # ours: a newer daemon's socket is left alone
+        await self._listener.close()
 
     def _document(self) -> bytes:
         now = time.monotonic()
@@ -110,14 +112,44 @@ class StatusServer:
         self._cached = (now, data)
         return data
 
-    async def _serve_one(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        if self._active >= self._max_clients:
-            self.refused += 1
-            writer.transport.abort()
-            return
-        self._active += 1
+    def _accepted(self, conn: socket.socket, peer: Peer, place: Ticket) -> None:
+        """Answer at once: the document fits in the socket's buffer, so one send
+        writes it and the connection is closed there and then, no task made. Only
+        a document larger than the buffer, or a client that sent something (it
+        must not lose its document to a reset), goes on in a task."""
+        data = self._document()
         try:
-            writer.write(self._document())
+            sent = conn.send(data)
+        except BlockingIOError:
+            sent = 0
+        except OSError:  # the client left already
+            place.release()
+            conn.close()
+            return
+        if sent < len(data):
+            self._listener.serve(conn, peer, place, partial(self._write_rest, data[sent:]))
+            return
+        self.served += 1
+        place.release()
+        with contextlib.suppress(OSError):
+            conn.shutdown(socket.SHUT_WR)  # the end of the stream
+        if _input_pending(conn):
+            lingering = self._lingering.admit(peer.uid)
+            if not isinstance(lingering, str):
+                self._listener.serve(conn, peer, lingering, self._linger)
+                return
+        conn.close()
+
+    async def _write_rest(
+        self,
+        rest: bytes,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        peer: Peer,
+        place: Ticket,
+    ) -> None:
+        try:
+            writer.write(rest)
             async with asyncio.timeout(self._timeout_s):
                 await writer.drain()
             writer.write_eof()
@@ -126,51 +158,45 @@ class StatusServer:
             self.cut_off += 1
             writer.transport.abort()
             return
-        finally:
-            self._active -= 1
-        await self._linger(reader, writer)
+        place.release()  # written: lingering has its own bound
+        lingering = self._lingering.admit(peer.uid)
+        if not isinstance(lingering, str):
+            try:
+                await self._linger(reader, writer, peer, lingering)
+            finally:
+                lingering.release()
 
-    async def _linger(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    async def _linger(
+        self,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        peer: Peer,
+        place: Ticket,
+    ) -> None:
         """Wait (bounded) for the client to close before closing our end.
 
         A unix socket closed with unread input resets the connection, and the client
         loses the document it has not read yet; so what a client sent is read and
         dropped until it closes, for at most `client_timeout_s` and `MAX_DISCARD`
-        bytes, and for at most `MAX_LINGERING` clients at once (each holds a file
-        descriptor). A client that sends nothing is unaffected by the limits.
+        bytes, and for at most `MAX_LINGERING` clients at once, `LINGER_PER_PEER` of
+        one user (each holds a file descriptor). A client that sends nothing is
+        unaffected by the limits.
         """
-        if self._lingering < MAX_LINGERING:
-            self._lingering += 1
-            try:
-                async with asyncio.timeout(self._timeout_s):
-                    discarded = 0
-                    while discarded <= MAX_DISCARD and (chunk := await reader.read(READ_LIMIT)):
-                        discarded += len(chunk)
-            except (TimeoutError, OSError):
-                pass
-            finally:
-                self._lingering -= 1
-        writer.close()
-        with contextlib.suppress(TimeoutError, OSError):
-            async with asyncio.timeout(self._timeout_s):
-                await writer.wait_closed()
-
-
-def _clear_stale(path: Path) -> None:
-    try:
-        mode = path.lstat().st_mode
-    except FileNotFoundError:
-        return
-    if not stat.S_ISSOCK(mode):
-        raise SocketBusy(f"{path} exists and is not a socket; not replacing it")
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
-        probe.settimeout(0.5)
         try:
-            probe.connect(str(path))
-        except OSError:
-            path.unlink()  # left by a daemon that died: nobody answers
-            return
-    raise SocketBusy(f"another process answers on {path}; not replacing it")
+            async with asyncio.timeout(self._timeout_s):
+                discarded = 0
+                while discarded <= MAX_DISCARD and (chunk := await reader.read(READ_LIMIT)):
+                    discarded += len(chunk)
+        except (TimeoutError, OSError):
+            pass
+
+
+def _input_pending(conn: socket.socket) -> bool:
+    """Whether the client has sent something we have not read (not its close)."""
+    try:
+        return bool(conn.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT))
+    except OSError:  # nothing yet (BlockingIOError), or gone
+        return False
 
 
 async def serve_status(
@@ -179,18 +205,15 @@ async def serve_status(
     """The daemon's status duty: serve `render()`'s document until cancelled; retry a
     socket that cannot be bound. `journal` is `store.path` (`statuspaths`' rule)."""
     path = daemon_socket_path(settings, journal=journal) if settings.enabled else None
-    if path is None:
-        if settings.enabled:
+    problem = directory_problem(path) if path is not None else None
+    if path is None or problem is not None:
+        if problem is not None:
+            _log.error(f"no status or control socket: {problem}", path=str(path))
+        elif settings.enabled:
             _log.warning("no status socket: every path the rule gives is too long")
         await asyncio.Future()  # nothing to serve, for the daemon's lifetime
         return
-    runtime = os.environ.get("XDG_RUNTIME_DIR", "")
-    if settings.path is None and runtime and path.parent == Path(runtime) / "cc-daemon":
-        # $XDG_RUNTIME_DIR/cc-daemon: ours to make, private to the user. Never the
-        # journal's directory: a socket must not make a path the journal found gone.
-        with contextlib.suppress(OSError):
-            path.parent.mkdir(mode=0o700, exist_ok=True)
-    _log.info("status socket", path=str(path))
+    _say_where(settings, journal, path)
     server = StatusServer(
         path,
         render,
@@ -200,31 +223,18 @@ async def serve_status(
     await serve_until_cancelled(server, "status")
 
 
-class BoundServer(Protocol):
-    path: Path
-
-    async def start(self) -> None: ...
-
-    async def close(self) -> None: ...
-
-
-async def serve_until_cancelled(server: BoundServer, what: str) -> None:
-    """Bind `server` and serve until cancelled, then close it. A socket that cannot be
-    bound (another daemon's, a path not there yet) is said and retried every
-    RETRY_BIND_S: never a crash of the duty that serves it."""
-    try:
-        while True:
-            try:
-                await server.start()
-                break
-            except OSError as exc:
-                _log.error(
-                    f"{what} socket unavailable; retrying",
-                    path=str(server.path),
-                    error=str(exc),
-                    retry_s=RETRY_BIND_S,
-                )
-                await asyncio.sleep(RETRY_BIND_S)
-        await asyncio.Future()  # serve until the daemon cancels us
-    finally:
-        await server.close()
+def _say_where(settings: StatusSettings, journal: Path | None, path: Path) -> None:
+    """One line: the socket's path, and why it is not beside the journal if it is not."""
+    journal = journal if journal is not None else DEFAULT_JOURNAL
+    beside = Path(f"{Path(journal).absolute()}.status.sock")
+    moved = settings.path is None and path.parent == private_directory()
+    why = shared_directory(beside) if moved else None
+    if why is None:
+        _log.info("status socket", path=str(path))
+        return
+    _log.warning(
+        f"status socket not beside the journal: {why}, so anyone could answer there;"
+        f" serving in the private {path.parent} instead"
+        f" (cc-daemon status --db {journal} finds it)",
+        path=str(path),
+    )

@@ -11,7 +11,7 @@ from pathlib import Path
 from cc_daemon.cli.status.client import StatusUnavailable, read_status
 from cc_daemon.cli.status.view import render_text, watch
 from cc_daemon.config import StatusSettings
-from cc_daemon.config.statuspaths import client_socket_paths
+from cc_daemon.config.statuspaths import client_socket_paths, present
 from cc_daemon.core.errors import ConfigError
 
 
@@ -26,6 +26,12 @@ def add_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
     p.add_argument(
         "--config", dest="status_config", type=Path, help="read status.path from this file"
     )
+    p.add_argument(
+        "--db",
+        dest="status_db",
+        type=Path,
+        help="the journal of a daemon started by hand with --db: its socket is found by it",
+    )
     p.add_argument("--json", action="store_true", help="the document as one JSON line")
     p.add_argument("--watch", action="store_true", help="a live view, until Ctrl-C")
     p.add_argument("--interval", type=float, default=1.0, help="--watch refresh, seconds (1)")
@@ -33,9 +39,11 @@ def add_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
     p.set_defaults(handler=run_status)
 
 
-def socket_candidates(socket_path: Path | None, config: Path | None) -> list[Path]:
+def socket_candidates(
+    socket_path: Path | None, config: Path | None, db: Path | None = None
+) -> list[Path]:
     """--socket alone, else the configuration's status.path alone, else where a daemon
-    started by hand with the same configuration binds, then the service's socket."""
+    started by hand with the same configuration (and --db) binds, then the service's."""
     if socket_path is not None:
         return [socket_path]
     from cc_daemon.config import load_settings
@@ -50,12 +58,12 @@ def socket_candidates(socket_path: Path | None, config: Path | None) -> list[Pat
             raise
         settings = None  # e.g. /etc/cc-daemon unreadable to this user: use the default
     # The same rule the daemon bound by (`statuspaths`).
-    return client_socket_paths(settings, journal=journal)
+    return client_socket_paths(settings, journal=db if db is not None else journal)
 
 
 def run_status(args: argparse.Namespace) -> int:
-    tried = socket_candidates(args.socket, args.status_config)
-    path = next((p for p in tried if p.exists()), tried[-1])
+    tried = socket_candidates(args.socket, args.status_config, args.status_db)
+    path = next((p for p in tried if present(p)), tried[-1])
     if args.watch:
         return watch(
             lambda: read_status(path), interval_s=max(args.interval, 0.1), updates=args.updates
