@@ -24,7 +24,7 @@ $(BASE_STAMP): pyproject.toml | $(BIN)/python
 	@touch $@
 
 $(EXTRAS_STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[plot,netcdf]'
+	$(BIN)/python -m pip install --quiet -e '.[plot,netcdf,science]'
 	@touch $@ $(BASE_STAMP)
 
 $(TEST_STAMP): pyproject.toml | $(BIN)/python

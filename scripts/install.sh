@@ -12,7 +12,7 @@
 #              ExecStart= expects that path)
 #   PYTHON     the interpreter the venv is made from (python3, >= 3.11)
 #   EXTRAS     pip extras to install, comma-separated; by default what the installed
-#              service and its commands use: "plot,netcdf" (plots and NetCDF exports on
+#              service and its commands use: "plot,netcdf,science" (plots, NetCDF and the science on
 #              the Pi), and "pi" (lgpio) when the configuration drives the GPIO winch
 #   PIP_ARGS   extra arguments for pip (e.g. --no-index --find-links DIR, offline)
 #
@@ -54,7 +54,7 @@ extras() {
     # The backend the configuration in force selects (the shipped one on a first install).
     local config="$CONFIG"
     [[ -f "$config" ]] || config="$SRC/config/cc-daemon.toml"
-    local backend wanted="plot,netcdf"
+    local backend wanted="plot,netcdf,science"
     backend="$(sed -n '/^\[winch\]/,/^\[/{s/^backend *= *"\([a-z]*\)".*/\1/p}' "$config" | head -n1)"
     # The extras' names are pyproject.toml's: fail loudly if one is ever renamed.
     local extra
