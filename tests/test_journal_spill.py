@@ -41,7 +41,7 @@ def query(path: Path, sql: str) -> list[tuple[object, ...]]:
         return conn.execute(sql).fetchall()
 
 
-def wait_for(predicate: Callable[[], bool], timeout: float = 10.0) -> None:
+def wait_for(predicate: Callable[[], bool], timeout: float = 30.0) -> None:
     deadline = time.monotonic() + timeout
     while not predicate():
         if time.monotonic() > deadline:
@@ -169,7 +169,7 @@ SCRIPT = textwrap.dedent(
     STATION = StartMeasuring(73, -37260600, 404506400, 702000, 6500, 90)
     out = {}
 
-    def wait(pred, timeout=10.0):
+    def wait(pred, timeout=30.0):
         end = time.monotonic() + timeout
         while not pred():
             if time.monotonic() > end:

@@ -92,7 +92,7 @@ def test_a_held_fix_reaches_the_file_when_telemetry_stops(tmp_path: Path) -> Non
     try:
         journal.record_fix(FIX)
         clock.advance(0.6)  # its interval is over; the writer's next pass (<= 1 s) releases it
-        wait_for(lambda: query(db, "SELECT count(*) FROM fixes") == [(1,)], timeout=5)
+        wait_for(lambda: query(db, "SELECT count(*) FROM fixes") == [(1,)], timeout=30)
     finally:
         journal.close()
 

@@ -13,6 +13,7 @@ import os
 import sqlite3
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -59,14 +60,15 @@ class RateLimitedLog:
     Never raises (see `emit`).
     """
 
-    def __init__(self, interval_s: float) -> None:
+    def __init__(self, interval_s: float, clock: Callable[[], float] = time.monotonic) -> None:
         self._interval_s = interval_s
+        self._clock = clock
         self._lock = threading.Lock()
         self._last: dict[str, tuple[float, int]] = {}
 
     def error(self, key: str, event: str, **fields: Any) -> None:
         with contextlib.suppress(Exception):
-            now = time.monotonic()
+            now = self._clock()
             with self._lock:
                 last, held = self._last.get(key, (-float("inf"), 0))
                 if now - last < self._interval_s:
