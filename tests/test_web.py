@@ -136,7 +136,7 @@ async def test_a_missing_journal_is_a_503_not_a_crash(
     try:
         r = await c.get("/api/surveys")
         assert r.status == 503
-        assert "no journal at" in (await r.json())["error"]
+        assert (await r.json())["error"].startswith("no journal yet")  # and not where
         assert not (tmp_path / "none.db").exists()  # read-only: nothing created
         assert (await c.get("/api/status")).status == 200
     finally:
