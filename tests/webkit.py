@@ -87,8 +87,8 @@ def lengthen(db: Path, copies: int, *, fixes: bool = True) -> None:
     session: its fixes (unless not `fixes`), casts and samples, each copy later by
     the survey's span (SQL, not the journal's API: a ten-day survey in seconds)."""
     with contextlib.closing(sqlite3.connect(db)) as conn, conn:
-        session, first, last, top = conn.execute(
-            "SELECT session_id, min(wall_s), max(wall_s), max(id) FROM fixes"
+        session, first, last, low, top = conn.execute(
+            "SELECT session_id, min(wall_s), max(wall_s), min(id), max(id) FROM fixes"
             " WHERE session_id = (SELECT max(id) FROM sessions)"
         ).fetchone()
         span = last - first + 1.0
@@ -111,7 +111,10 @@ def lengthen(db: Path, copies: int, *, fixes: bool = True) -> None:
 
         for k in range(1, copies + 1):
             if fixes:
-                copy("fixes", "session_id = ? AND id <= ?", (session, top), k * span)
+                # By rowid: the session's own index would be walked whole each time.
+                copy(
+                    "fixes", "id BETWEEN ? AND ? AND +session_id = ?", (low, top, session), k * span
+                )
             for cast in casts:
                 made = copy("casts", "id = ?", (cast,), k * span)
                 copy("samples", "cast_id = ?", (cast,), k * span, cast_id=made)
@@ -125,7 +128,8 @@ REPO = Path(__file__).resolve().parent.parent
 class WebProcess:
     """`cc-daemon web` on a free port of 127.0.0.1, every line of its stderr kept (a
     thread reads them, so its log never blocks on a full pipe). `nofile`: its
-    descriptor limit (RLIMIT_NOFILE, soft and hard)."""
+    descriptor limit (RLIMIT_NOFILE, soft and hard); `tree`: the checkout it runs
+    from (another version's, for a benchmark's comparison)."""
 
     def __init__(
         self,
@@ -134,18 +138,20 @@ class WebProcess:
         *extra: str,
         nofile: int | None = None,
         env: dict[str, str] | None = None,
+        tree: Path = REPO,
     ):
         def limit() -> None:
             if nofile is not None:
                 resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
 
         environ = {k: v for k, v in os.environ.items() if not k.startswith("CC_DAEMON_")}
-        environ.update(PYTHONPATH=str(REPO), CC_DAEMON_LOG__FORMAT="json", **(env or {}))
+        environ.update(PYTHONPATH=str(tree), CC_DAEMON_LOG__FORMAT="json")
+        environ.update(env or {})
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "cc_daemon", "web", "--listen", "127.0.0.1:0",
              "--socket", str(socket), "--db", str(journal), *extra],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-            env=environ, preexec_fn=limit,  # noqa: PLW1509 (the test's thread only)
+            env=environ, cwd=tree, preexec_fn=limit,  # noqa: PLW1509 (the test's thread only)
         )  # fmt: skip
         self.lines: list[bytes] = []
         self._started = threading.Event()

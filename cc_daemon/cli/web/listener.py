@@ -7,10 +7,11 @@ however many piled up (the issue: 187,094 tracebacks in 40 s). Here:
 
 - at most `Limits.connections` are open at once (fewer if the descriptor limit
   is low: `Limits.reserve_fds` stay free for the journal and the status socket),
-  and at most `Limits.per_client` from one address; when the page is full, the
-  connection that has waited longest for a request is closed to make room, and
-  a newcomer finds none waiting only while every connection is being answered;
-  a connection refused is closed at once, before aiohttp sees it;
+  and at most `Limits.per_client` from one address; when the page is full, a
+  newcomer from an address holding less than its share takes the place of a
+  connection waiting for a request, the longest-waiting of the address holding
+  the most (`Connections.admit`); a connection refused is closed at once, with a
+  reset, before aiohttp sees it;
 - a connection that sends no whole request head within `header_timeout_s` of
   opening, or `idle_timeout_s` of its last answer, is closed (slow headers,
   idle keep-alives);
@@ -45,8 +46,16 @@ from cc_daemon.cli.web.policy import HEADERS, Limits
 log = structlog.get_logger(__name__)
 
 ACCEPT_PAUSE_S = 0.5  # out of descriptors with nothing to close: try again after this
+# When the page is full and no address holds more than the newcomer's, a
+# connection must have waited this long to be closed for it: newcomers cannot
+# churn the page's connections faster than its cap a second.
+MIN_WAIT_S = 1.0
 SWEEP_S = 1.0  # how often the timeouts are looked at
-BACKLOG = 128
+# A long queue of connections waiting to be accepted, drained in bursts: when a
+# flood fills it, the kernel drops a newcomer's SYN and the browser tries again
+# only after 1, 3, 7 s... The kernel caps it at net.core.somaxconn.
+BACKLOG = 1024
+REFUSALS_AT_ONCE = 64  # refused (cheaply) between two turns of the loop's other work
 _TRANSIENT = {errno.ECONNABORTED, errno.EPROTO, errno.EPERM, errno.EINTR, errno.EAGAIN}
 
 
@@ -182,28 +191,50 @@ class Connections:
             del self._per_client[handler.client]
 
     def admit(self, client: str) -> bool:
-        """Whether a new connection from `client` may open (room is made if need be)."""
-        if self._per_client.get(client, 0) >= self.limits.per_client:
+        """Whether a new connection from `client` may open (room is made if need be).
+
+        When the page is full, an address holding its share (the cap over the
+        addresses holding connections) or more is refused, cheaply, before any
+        room is made: forty addresses holding a thousand connections cost their
+        own re-tries, not the page's. One holding less takes the place of the
+        longest-waiting connection of the address holding the most, or, where
+        none holds more, of one that has waited MIN_WAIT_S at least."""
+        mine = self._per_client.get(client, 0)
+        if mine >= self.limits.per_client:
             self.refused += 1
             log.warning("a connection was refused: too many from one address")
             return False
-        if len(self._open) >= self.cap and not self.make_room():
-            self.refused += 1
-            log.warning("a connection was refused: every connection is being answered")
-            return False
-        return True
+        if len(self._open) < self.cap:
+            return True
+        share = self.cap // max(1, len(self._per_client) + (mine == 0))
+        if mine < share and self.make_room(heavier_than=mine + 1):
+            return True
+        self.refused += 1
+        log.warning("a connection was refused: the page is full")
+        return False
 
-    def make_room(self) -> bool:
-        """Close the connection that has waited longest for a request, if any waits."""
+    def make_room(self, heavier_than: int = 0) -> bool:
+        """Close the connection that has waited longest for a request among those of
+        the address holding the most (more than `heavier_than`; else, one that has
+        waited MIN_WAIT_S at least); False if none may be closed."""
         now = time.monotonic()
-        waiting = [(w, h) for h in self._open if (w := h.waited(now)) is not None]
-        if not waiting:
+        best: tuple[int, float, Guarded] | None = None
+        for handler in self._open:
+            waited = handler.waited(now)
+            if waited is None:
+                continue
+            held = self._per_client[handler.client]
+            if held <= heavier_than and waited < MIN_WAIT_S:
+                continue
+            rank = (held if held > heavier_than else 0, waited, handler)
+            if best is None or rank[:2] > best[:2]:
+                best = rank
+        if best is None:
             return False
-        _, oldest = max(waiting, key=lambda pair: pair[0])
         self.evicted += 1
         log.warning("the page is full: the longest-waiting connection was closed")
-        oldest.drop()
-        self.remove(oldest)  # its descriptor is free now; aiohttp hears of it later
+        best[2].drop()
+        self.remove(best[2])  # its descriptor is free now; aiohttp hears of it later
         return True
 
     def sweep(self) -> None:
@@ -258,6 +289,7 @@ class Listener:
 
     async def _accept(self, listener: socket.socket) -> None:
         loop = asyncio.get_running_loop()
+        refused = 0
         while True:
             try:
                 conn, address = await loop.sock_accept(listener)
@@ -272,7 +304,9 @@ class Listener:
             client = str(address[0])
             if not self.connections.admit(client):
                 _refuse(conn)
-                await asyncio.sleep(0)  # a flood of refusals must not starve the loop
+                refused += 1
+                if refused % REFUSALS_AT_ONCE == 0:
+                    await asyncio.sleep(0)  # a flood of refusals must not starve the loop
                 continue
             try:
                 await loop.connect_accepted_socket(functools.partial(self._handler, client), conn)

@@ -29,7 +29,9 @@ WINDOW_S = 60.0  # repeats of a line are held back this long, then counted
 
 def configure(fmt: str, level: str) -> None:
     """As the daemon: "auto" follows stdout (a terminal, or journald's JSON)."""
-    configure_logging(resolve_format(fmt, sys.stdout), level, rate_limit_window_s=WINDOW_S)
+    configure_logging(
+        resolve_format(fmt, sys.stdout), level, sys.stderr, rate_limit_window_s=WINDOW_S
+    )
 
 
 async def flush_forever() -> None:
