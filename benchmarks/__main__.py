@@ -27,6 +27,7 @@ MODULES = [
     "sonar_stream",
     "sonar_rss",
     "web",
+    "web_attacks",
 ]
 
 
