@@ -52,6 +52,17 @@ def idle(port: int, count: int, sources: list[str]) -> Iterator[list[socket.sock
             sock.close()
 
 
+async def close_all(
+    reads: list[asyncio.Future[bytes]],
+    connections: list[tuple[asyncio.StreamReader, asyncio.StreamWriter]],
+) -> None:
+    for task in reads:
+        task.cancel()
+    for _, writer in connections:
+        writer.close()
+    await asyncio.gather(*reads, return_exceptions=True)
+
+
 def closed_by_peer(sock: socket.socket) -> bool:
     """Whether the other end has closed (EOF or reset), without blocking."""
     if not select.select([sock], [], [], 0)[0]:
@@ -157,11 +168,7 @@ async def test_one_address_gets_its_share_of_the_connections_and_no_more(
             writer.close()
             await writer.wait_closed()
         finally:
-            for task in ended:
-                task.cancel()
-            for _, writer in held:
-                writer.close()
-            await asyncio.gather(*ended, return_exceptions=True)
+            await close_all(ended, held)
 
 
 async def test_a_full_page_makes_room_for_an_address_below_its_share(
@@ -193,11 +200,7 @@ async def test_a_full_page_makes_room_for_an_address_below_its_share(
             await asyncio.wait_for(asyncio.wait(ended, return_when=asyncio.FIRST_COMPLETED), 30)
             assert sum(task.done() for task in ended) == 1
         finally:
-            for task in ended:
-                task.cancel()
-            for _, writer in heavy:
-                writer.close()
-            await asyncio.gather(*ended, return_exceptions=True)
+            await close_all(ended, heavy)
 
 
 @pytest.mark.timeout(120)

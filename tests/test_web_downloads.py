@@ -20,10 +20,10 @@ from typing import Any
 
 import pytest
 import structlog
-from aiohttp.test_utils import TestClient, TestServer
+from aiohttp.test_utils import TestClient
 
 from cc_daemon.cli.web.policy import Limits
-from cc_daemon.cli.web.server import Sources, build_app
+from cc_daemon.cli.web.server import Sources
 from cc_daemon.export import csv, geojson
 from cc_daemon.export.provenance import of_casts
 from cc_daemon.store import CastRecord, FixRecord, JournalReader
@@ -60,9 +60,9 @@ def many_samples(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @contextlib.asynccontextmanager
 async def page(journal: Path, **limits: Any) -> AsyncIterator[TestClient[Any, Any]]:
     sources = Sources(socket=journal.parent / "none.sock", journal=journal)
-    app = build_app(sources, Limits(**limits)) if limits else build_app(sources)
-    client: TestClient[Any, Any] = TestClient(TestServer(app))
-    await client.start_server()
+    client: TestClient[Any, Any] = await webkit.client_for(
+        sources, Limits(**limits) if limits else None
+    )
     try:
         yield client
     finally:

@@ -233,6 +233,18 @@ def deadline_poll(check: Callable[[], bool], what: str, seconds: float = 30.0) -
         time.sleep(0.05)
 
 
+async def client_for(sources: Any, limits: Any = None) -> Any:
+    """aiohttp's test client on the page's app (`server.build_app`), started."""
+    from aiohttp.test_utils import TestClient, TestServer
+
+    from cc_daemon.cli.web.server import build_app
+
+    app = build_app(sources) if limits is None else build_app(sources, limits)
+    client: TestClient[Any, Any] = TestClient(TestServer(app))
+    await client.start_server()
+    return client
+
+
 @asynccontextmanager
 async def served(sources: Any, **kw: Any) -> AsyncIterator[str]:
     """`server.serve` in this test's loop on a free port of 127.0.0.1: its base URL."""
