@@ -100,6 +100,7 @@ def fix_batches(reader: JournalReader, size: int = FIX_BATCH) -> Iterator[list[F
     orders = reader._session_orders()
     after = -(2**63)  # below any rowid
     while True:
+        # `+session_id`: walk the rowids from `after`, not the session's index whole.
         where = "id > ?" + ("" if reader.survey is None else " AND +session_id = ?")
         params = [after] if reader.survey is None else [after, reader.survey]
         rows = reader._query(
