@@ -116,7 +116,10 @@ class StatusCache:
         except RecursionError:  # json's own limit: about 1,000 levels
             doc = None
         if doc is None or deeper_than(doc, STATUS_MAX_DEPTH):
-            reason = f"{path}: the answer nests deeper than {STATUS_MAX_DEPTH} levels"
+            reason = (
+                f"{path}: the answer is not a status document"
+                f" (it nests deeper than {STATUS_MAX_DEPTH} levels)"
+            )
             return {"reachable": False, "reason": reason, "read_at": time.time()}
         return {**doc, "reachable": True, "read_at": time.time()}
 
