@@ -153,3 +153,12 @@ def test_the_web_unit_reads_and_never_writes_the_daemons_files() -> None:
     assert not {"ReadWritePaths", "StateDirectory", "RuntimeDirectory"} & set(s)
     assert s["RestrictAddressFamilies"] == ["AF_UNIX AF_INET AF_INET6"]
     assert s["RestartPreventExitStatus"] == ["2"]
+
+
+def test_the_web_units_descriptor_limit_holds_its_connections_and_a_reserve() -> None:
+    from cc_daemon.cli.web.policy import Limits
+
+    limit = unit_settings(WEB_UNIT.read_text())["LimitNOFILE"]
+    assert len(limit) == 1 and limit[0].isdigit()  # one figure: soft and hard the same
+    limits = Limits()
+    assert limits.connections + limits.reserve_fds <= int(limit[0]) <= 4096

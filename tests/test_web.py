@@ -15,10 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from aiohttp.test_utils import TestClient, TestServer
+from aiohttp.test_utils import TestClient
 
 from cc_daemon.cli.web import auth
-from cc_daemon.cli.web.server import Sources, build_app
+from cc_daemon.cli.web.server import Sources
 from cc_daemon.daemon.status_server import StatusServer
 from cc_daemon.store import JournalReader
 from tests import webkit
@@ -40,8 +40,7 @@ async def socket(tmp_path: Path) -> AsyncIterator[tuple[Path, dict[str, Any]]]:
 
 
 async def client_for(sources: Sources) -> TestClient[Any, Any]:
-    client: TestClient[Any, Any] = TestClient(TestServer(build_app(sources)))
-    await client.start_server()
+    client: TestClient[Any, Any] = await webkit.client_for(sources)
     return client
 
 
@@ -136,7 +135,7 @@ async def test_a_missing_journal_is_a_503_not_a_crash(
     try:
         r = await c.get("/api/surveys")
         assert r.status == 503
-        assert "no journal at" in (await r.json())["error"]
+        assert (await r.json())["error"].startswith("no journal yet")  # and not where
         assert not (tmp_path / "none.db").exists()  # read-only: nothing created
         assert (await c.get("/api/status")).status == 200
     finally:

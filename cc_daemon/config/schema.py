@@ -446,6 +446,24 @@ def _check_password_hash(value: str | None) -> str | None:
     return value
 
 
+# A DNS name as a browser sends it in `Host` (RFC 1123 labels), without a port.
+_HOST_NAME = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)(\.(?!-)[A-Za-z0-9-]{1,63}(?<!-))*\.?")
+
+
+def _name_list(value: object) -> object:
+    """Text from the environment ("a.org, b.org") as the list a TOML file gives."""
+    if isinstance(value, str):
+        return [part for part in re.split(r"[,\s]+", value) if part]
+    return value
+
+
+def _check_host_names(value: list[str]) -> list[str]:
+    for name in value:
+        if not _HOST_NAME.fullmatch(name):
+            raise ValueError(f'{name!r} is not a host name (e.g. "boat.example.org", no port)')
+    return value
+
+
 class WebSettings(BaseModel):
     """[web]: the field page, `cc-daemon web` (a separate, read-only process)."""
 
@@ -456,6 +474,9 @@ class WebSettings(BaseModel):
     password_hash: Annotated[
         str | None, BeforeValidator(_empty_is_none), AfterValidator(_check_password_hash)
     ] = None
+    # Names the page answers to besides its addresses, localhost and this
+    # computer's own name (a `Host` naming any other is refused: DNS rebinding).
+    hosts: Annotated[list[str], BeforeValidator(_name_list), AfterValidator(_check_host_names)] = []
 
 
 class SonarSettings(BaseModel):

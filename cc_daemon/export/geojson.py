@@ -21,7 +21,7 @@ without one is left out.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, TextIO
 
 from cc_daemon.store.records import CastRecord, FixRecord, iso_utc
@@ -102,10 +102,87 @@ def feature_collection(casts: Sequence[CastRecord], fixes: Sequence[FixRecord]) 
     return {"type": "FeatureCollection", "features": features}
 
 
+# allow_nan=False: NaN is not JSON, and QGIS would reject the whole file.
+_dump = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
+
+
+def _items(values: list[Any]) -> str:
+    """`values` as JSON array items (no brackets): one encoder call for a batch."""
+    return _dump(values)[1:-1]
+
+
 def write(casts: Sequence[CastRecord], fixes: Sequence[FixRecord], out: TextIO) -> int:
     """Write the FeatureCollection to `out`; return the number of features."""
-    collection = feature_collection(casts, fixes)
-    # allow_nan=False: NaN is not JSON, and QGIS would reject the whole file.
-    json.dump(collection, out, allow_nan=False, separators=(",", ":"))
-    out.write("\n")
-    return len(collection["features"])
+    return write_batches(casts, lambda: [fixes], out)
+
+
+def write_batches(
+    casts: Sequence[CastRecord],
+    fix_batches: Callable[[], Iterable[Sequence[FixRecord]]],
+    out: TextIO,
+) -> int:
+    """`write`, the same bytes, holding one batch of fixes at a time (a ten-day
+    survey has 864,000): `fix_batches()` gives the fixes in order, in batches; it
+    is called twice, for the track and for the soundings."""
+    out.write('{"type":"FeatureCollection","features":[')
+    features = 0
+    if casts:
+        out.write(_items([_station(c) for c in casts]))
+        features += len(casts)
+    track = _Track(out, comma=features > 0)
+    for batch in fix_batches():
+        track.add(batch)
+    if track.end():
+        features += 1
+    for batch in fix_batches():
+        if batch:
+            out.write(("," if features else "") + _items([_sounding(f) for f in batch]))
+            features += len(batch)
+    out.write("]}\n")
+    return features
+
+
+class _Track:
+    """The track's LineString, written as its fixes come; its properties (first
+    and last time, count) close it. Nothing is written for fewer than two fixes."""
+
+    def __init__(self, out: TextIO, *, comma: bool) -> None:
+        self._out = out
+        self._comma = comma
+        self._first: FixRecord | None = None
+        self._last: FixRecord | None = None
+        self._count = 0
+        self._started = False
+
+    def _parts(self, count: int) -> tuple[str, str]:
+        """`_track`'s text before and after its positions: one maker of its shape."""
+        assert self._first is not None and self._last is not None
+        feature = _track([self._first, self._last])
+        feature["geometry"]["coordinates"] = _MARK
+        feature["properties"]["fixes"] = count
+        head, _, tail = _dump(feature).partition(_dump(_MARK))
+        return head + "[", "]" + tail
+
+    def add(self, batch: Sequence[FixRecord]) -> None:
+        if not batch:
+            return
+        self._first = self._first or batch[0]
+        self._last = batch[-1]
+        positions = [_position(f.lon_deg, f.lat_deg) for f in batch]
+        if self._started:
+            self._out.write("," + _items(positions))
+        elif self._count + len(batch) >= 2:  # the head, then every position so far
+            if self._count:
+                positions.insert(0, _position(self._first.lon_deg, self._first.lat_deg))
+            head = self._parts(0)[0]
+            self._out.write(("," if self._comma else "") + head + _items(positions))
+            self._started = True
+        self._count += len(batch)
+
+    def end(self) -> bool:
+        if self._started:
+            self._out.write(self._parts(self._count)[1])
+        return self._started
+
+
+_MARK = "\x00positions"

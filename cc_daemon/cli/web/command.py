@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import getpass
+import signal
 import sys
 from pathlib import Path
 
@@ -37,8 +39,10 @@ def run_web(args: argparse.Namespace) -> int:
         return _hash_password()
     from cc_daemon.cli.data import journal_path
     from cc_daemon.cli.status.command import socket_candidates
+    from cc_daemon.cli.web import weblog
     from cc_daemon.cli.web.server import Sources, serve
     from cc_daemon.config import WebSettings, load_settings
+    from cc_daemon.ground.logsetup import flush_rate_limited
 
     settings = load_settings(args.config)  # a bad key: ConfigError, exit 2, nothing bound
     web = settings.web
@@ -46,25 +50,27 @@ def run_web(args: argparse.Namespace) -> int:
         # Port 0 on the command line only: a free port, said on stderr (for tests).
         listen = args.listen.removesuffix(":0") + ":1" if args.listen.endswith(":0") else None
         try:
-            web = WebSettings(listen=listen or args.listen, password_hash=web.password_hash)
-            web = web.model_copy(update={"listen": args.listen})
+            WebSettings(listen=listen or args.listen)
         except ValueError:
             print(f'cc-daemon web: --listen {args.listen}: must be "host:port"', file=sys.stderr)
             return EXIT_USAGE
+        web = web.model_copy(update={"listen": args.listen})
     sockets = socket_candidates(args.socket, args.config)
     sources = Sources(
         socket=sockets[0],
         also=tuple(sockets[1:]),
         journal=journal_path(argparse.Namespace(db=args.db or settings.store.path)),
         password_hash=web.password_hash,
+        hosts=frozenset(web.hosts),
     )
 
-    def ready(address: str) -> None:
+    def ready(address: str, connections: int) -> None:
         from cc_daemon.cli.doctor.software import check_web
 
         guard = "with a password" if web.password_hash else "no password"
         print(
-            f"cc-daemon web: http://{address}/ ({guard}; status from {sources.socket})",
+            f"cc-daemon web: http://{address}/ ({guard}; status from {sources.socket}; "
+            f"at most {connections} connections)",
             file=sys.stderr,
         )
         for check in check_web(settings.model_copy(update={"web": web})):
@@ -72,8 +78,30 @@ def run_web(args: argparse.Namespace) -> int:
                 print(f"cc-daemon web: WARNING: {check.detail}; {check.fix}", file=sys.stderr)
         sys.stderr.flush()
 
+    weblog.configure(settings.log.format, settings.log.level)
+
+    async def run() -> None:
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(weblog.loop_error)
+        # systemd's stop: the downloads under way end (their temporary files
+        # removed), the connections close, and the process exits 0.
+        stop = asyncio.Event()
+        loop.add_signal_handler(signal.SIGTERM, stop.set)
+        flusher = asyncio.create_task(weblog.flush_forever(), name="web-log")
+        stopped = asyncio.create_task(stop.wait(), name="web-stop")
+        serving = asyncio.create_task(serve(sources, web.listen, ready=ready), name="web")
+        try:
+            await asyncio.wait([serving, stopped], return_when=asyncio.FIRST_COMPLETED)
+            serving.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await serving  # raises its OSError if it could not bind
+        finally:
+            flusher.cancel()
+            stopped.cancel()
+            flush_rate_limited(everything=True)
+
     try:
-        asyncio.run(serve(sources, web.listen, ready=ready))
+        asyncio.run(run())
     except OSError as exc:
         print(f"cc-daemon web: web.listen = {web.listen}: {exc.strerror or exc}", file=sys.stderr)
         return 1

@@ -1,51 +1,89 @@
 """A survey as the files `cc-daemon export` writes: CSV samples, GeoJSON, NetCDF-CF.
 
-The same writers as the command, fed by a read-only `JournalReader`; each file
-is made whole in memory (or a temporary file, for NetCDF) before a byte is sent.
+The same writers as the command, fed by a read-only `JournalReader`, writing to
+a `pipe.Pipe` on a download's own thread, so a download holds a few chunks of
+the file at a time, whatever the survey's length (a ten-day survey's GeoJSON is
+over 200 MB): the samples are read a cast at a time, the fixes a batch at a
+time. NetCDF's profiles need every sample at once (about 80,000 in ten days);
+its file is written to a temporary directory, sent from there, and removed
+however the download ends. Everything that can refuse a download (no such
+survey, a damaged journal, no netCDF4, no cast) does so before its first byte.
 """
 
 from __future__ import annotations
 
-import io
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
+from cc_daemon.cli.web import journaldata
 from cc_daemon.cli.web.journaldata import NotFound
-from cc_daemon.store import JournalReader, StoreError
+from cc_daemon.cli.web.pipe import CHUNK, Pipe
+from cc_daemon.store import CastRecord, JournalReader, SampleRecord, StoreError
 
 FORMATS = {
     "csv": "text/csv; charset=utf-8",
     "geojson": "application/geo+json",
     "nc": "application/x-netcdf",
 }
+FIX_BATCH = 500  # fixes in memory at once, with their features and text: about 2 MB
 
 
-def survey_file(path: Path, survey: int, fmt: str) -> bytes:
-    """The survey's file in `fmt` (a key of FORMATS). NotFound, StoreError, or
-    OptionalDependencyError (netCDF4 missing) say why not."""
-    from cc_daemon.export import csv, geojson
-    from cc_daemon.export.provenance import of_casts
+def writer(path: Path, survey: int, fmt: str) -> Callable[[Pipe], None]:
+    """What writes survey `survey` as `fmt` (a key of FORMATS) to a pipe. It raises
+    NotFound, StoreError, OptionalDependencyError (netCDF4 missing) or ValueError
+    (NetCDF of a survey without a cast) before it writes anything."""
+    return {"csv": _csv, "geojson": _geojson, "nc": _netcdf}[fmt](path, survey)
 
-    if not path.exists():
-        raise StoreError(f"no journal at {path} yet")
-    with JournalReader(path) as reader:
-        try:
-            reader.select_survey(survey)
-        except StoreError as exc:
-            raise NotFound(str(exc)) from None
-        casts = reader.casts()
-        if fmt == "geojson":
-            text = io.StringIO()
-            geojson.write(casts, reader.fixes(), text)
-            return text.getvalue().encode()
-        samples = reader.samples()
-    if fmt == "csv":
-        text = io.StringIO(newline="")
-        csv.write_samples(samples, text, provenance=of_casts(casts).comment())
-        return text.getvalue().encode()
-    from cc_daemon.export import netcdf
 
-    with tempfile.TemporaryDirectory(prefix="cc-daemon-web-") as tmp:
-        target = Path(tmp) / "survey.nc"
-        netcdf.write(casts, samples, target)
-        return target.read_bytes()
+def _chosen(reader: JournalReader, survey: int) -> list[CastRecord]:
+    try:
+        reader.select_survey(survey)
+    except StoreError as exc:
+        raise NotFound(str(exc)) from None
+    damage = reader.damage_report()
+    if damage is not None:  # said before the first byte, not after the last
+        raise StoreError(damage)
+    return reader.casts()
+
+
+def _csv(path: Path, survey: int) -> Callable[[Pipe], None]:
+    def write(out: Pipe) -> None:
+        from cc_daemon.export import csv
+        from cc_daemon.export.provenance import of_casts
+
+        with journaldata._open(path) as reader:
+            casts = _chosen(reader, survey)
+            samples = (s for cast in casts for s in reader.samples(cast_id=cast.id))
+            csv.write_samples(samples, out.as_text(), provenance=of_casts(casts).comment())
+
+    return write
+
+
+def _geojson(path: Path, survey: int) -> Callable[[Pipe], None]:
+    def write(out: Pipe) -> None:
+        from cc_daemon.export import geojson
+
+        with journaldata._open(path) as reader:
+            casts = _chosen(reader, survey)
+            geojson.write_batches(casts, lambda: reader.fix_batches(FIX_BATCH), out.as_text())
+
+    return write
+
+
+def _netcdf(path: Path, survey: int) -> Callable[[Pipe], None]:
+    def write(out: Pipe) -> None:
+        from cc_daemon.export import netcdf
+
+        with tempfile.TemporaryDirectory(prefix="cc-daemon-web-") as tmp:
+            target = Path(tmp) / "survey.nc"
+            with journaldata._open(path) as reader:
+                casts = _chosen(reader, survey)
+                samples: list[SampleRecord] = reader.samples()
+                netcdf.write(casts, samples, target)
+                del samples
+            with target.open("rb") as made:
+                while chunk := made.read(CHUNK):
+                    out.write_bytes(chunk)
+
+    return write

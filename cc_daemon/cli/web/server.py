@@ -3,34 +3,51 @@
 The status comes from the daemon's socket, read in a thread with a 1 s timeout
 and shared by every client for half a second, so ten phones polling cost the
 daemon two reads a second; the journal is read in a thread through
-`JournalReader` (read-only). Nothing here can write to either, and an error in
-a handler is that request's 500, never the daemon's concern.
+`JournalReader` (read-only), and a download is written on a thread of its own
+and streamed (`downloads`, `pipe`). Nothing here can write to either, and an
+error in a handler is that request's answer (`guard`), never the daemon's
+concern. Which connections are held is `listener`'s business; what a request
+must pass first, `guard`'s.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import dataclasses
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import structlog
 from aiohttp import web
 
 from cc_daemon.cli.status.client import StatusUnavailable, read_status
 from cc_daemon.cli.web import downloads, journaldata
 from cc_daemon.cli.web.auth import BasicAuth
+from cc_daemon.cli.web.guard import Refused, add_headers, default_names, middleware, number
+from cc_daemon.cli.web.listener import Listener, open_sockets
+from cc_daemon.cli.web.pipe import Pipe
+from cc_daemon.cli.web.policy import Limits
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import StoreError
 
+log = structlog.get_logger(__name__)
+
 STATUS_TIMEOUT_S = 1.0
 STATUS_SHARED_S = 0.5  # one socket read serves every client asking within this
-# Journal reads and downloads at once, at most: ten phones fetching NetCDF must not
-# take the Pi's cores (or its memory) from the daemon. The others wait their turn.
+# A status document deeper than this is not the daemon's (its sections are two
+# levels deep): shown as unreadable, never serialised again or drawn.
+STATUS_MAX_DEPTH = 32
+# Journal reads at once, at most: ten phones must not take the Pi's cores (or
+# its memory) from the daemon. The others wait their turn.
 JOURNAL_AT_ONCE = 2
+# Downloads at once, each on a thread of its own; apart from the journal reads,
+# so a long download never holds up the page's tables.
+DOWNLOADS_AT_ONCE = 2
 # What every open page asks on a timer is read once for all of them within this:
 # where the service's user cannot write beside the journal, each read copies it.
 JOURNAL_SHARED_S = {"latest": 4.5, "surveys": 10.0}
@@ -39,27 +56,32 @@ ASSETS = {
     "/static/page.css": ("page.css", "text/css; charset=utf-8"),
     "/static/page.js": ("page.js", "text/javascript; charset=utf-8"),
 }
-# Everything the page needs comes from here: no CDN, no inline script.
-_HEADERS = {
-    "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
-    "X-Content-Type-Options": "nosniff",
-    "Referrer-Policy": "no-referrer",
-    "Cache-Control": "no-store",
-}
-
-Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclasses.dataclass(frozen=True, slots=True)
 class Sources:
     socket: Path  # the daemon's status socket; `also`: where else it may be, in order
     journal: Path
     password_hash: str | None = None
     also: tuple[Path, ...] = ()
+    hosts: frozenset[str] = frozenset({"localhost"})  # names answered (`guard.default_names`)
 
 
 def asset(name: str) -> bytes:
     return resources.files("cc_daemon.cli.web").joinpath("static", name).read_bytes()
+
+
+def deeper_than(doc: Any, limit: int) -> bool:
+    """Whether `doc` nests more than `limit` levels (looked at without recursion)."""
+    stack = [(doc, 1)]
+    while stack:
+        value, depth = stack.pop()
+        if isinstance(value, dict | list):
+            if depth > limit:
+                return True
+            items = value.values() if isinstance(value, dict) else value
+            stack.extend((item, depth + 1) for item in items)
+    return False
 
 
 class StatusCache:
@@ -91,18 +113,15 @@ class StatusCache:
             doc = read_status(path, timeout_s=STATUS_TIMEOUT_S)
         except StatusUnavailable as exc:
             return {"reachable": False, "reason": str(exc), "read_at": time.time()}
+        except RecursionError:  # json's own limit: about 1,000 levels
+            doc = None
+        if doc is None or deeper_than(doc, STATUS_MAX_DEPTH):
+            reason = (
+                f"{path}: the answer is not a status document"
+                f" (it nests deeper than {STATUS_MAX_DEPTH} levels)"
+            )
+            return {"reachable": False, "reason": reason, "read_at": time.time()}
         return {**doc, "reachable": True, "read_at": time.time()}
-
-
-def _json_error(status: int, message: str) -> web.Response:
-    return web.json_response({"error": message}, status=status)
-
-
-def _int(request: web.Request, name: str) -> int:
-    try:
-        return int(request.match_info[name])
-    except ValueError:
-        raise web.HTTPNotFound() from None
 
 
 class Shared:
@@ -134,35 +153,61 @@ async def _journal(
     try:
         body = await (shared[0].get(shared[1], produce) if shared else produce())
     except journaldata.NotFound as exc:
-        return _json_error(404, str(exc))
+        raise Refused(404, str(exc)) from None
     except StoreError as exc:
-        return _json_error(503, str(exc))
+        raise Refused(503, str(exc)) from None
     return web.json_response(body)
 
 
-def build_app(sources: Sources) -> web.Application:
-    auth = BasicAuth(sources.password_hash) if sources.password_hash else None
+async def _first(chunks: AsyncIterator[bytes], survey: int) -> bytes | None:
+    """The download's first chunk (None: an empty file), or why there is none."""
+    try:
+        return await anext(chunks, None)
+    except journaldata.NotFound as exc:
+        raise Refused(404, str(exc)) from None
+    except OptionalDependencyError as exc:
+        raise Refused(503, f"{exc} (on the Pi: pip install 'cc-daemon[netcdf]')") from None
+    except StoreError as exc:
+        raise Refused(503, str(exc)) from None
+    except ValueError as exc:  # NetCDF of a survey without a cast
+        raise Refused(404, f"survey {survey}: {exc}") from None
+
+
+async def _send(
+    request: web.Request,
+    response: web.StreamResponse,
+    first: bytes | None,
+    chunks: AsyncIterator[bytes],
+    stall_s: float,
+) -> None:
+    """Send the download; cut the connection if its client stalls or the file fails
+    half-way (the client then sees a broken download, never a truncated file)."""
+    try:
+        if first is not None:
+            await asyncio.wait_for(response.write(first), stall_s)
+            async for chunk in chunks:
+                await asyncio.wait_for(response.write(chunk), stall_s)
+        await response.write_eof()
+        return
+    except ConnectionError:
+        return  # the client left
+    except TimeoutError:
+        log.warning("a download's client stopped reading: the download was dropped")
+    except Exception as exc:
+        log.error("a download failed after it began", error=type(exc).__name__, exc_info=exc)
+    if request.transport is not None:
+        request.transport.abort()
+
+
+def build_app(sources: Sources, limits: Limits | None = None) -> web.Application:
+    limits = limits or Limits()
+    auth = BasicAuth(sources.password_hash, limits) if sources.password_hash else None
     status = StatusCache(sources.socket, sources.also)
     gate = asyncio.Semaphore(JOURNAL_AT_ONCE)
+    download_turns = asyncio.Semaphore(DOWNLOADS_AT_ONCE)
+    download_threads = ThreadPoolExecutor(DOWNLOADS_AT_ONCE, thread_name_prefix="download")
     shared = Shared()
     pages = {path: (asset(name), kind) for path, (name, kind) in ASSETS.items()}
-
-    @web.middleware
-    async def guard(request: web.Request, handler: Handler) -> web.StreamResponse:
-        if auth is not None and not auth.allows(request.headers.get("Authorization")):
-            response: web.StreamResponse = web.Response(
-                status=401,
-                text="the field page needs its password\n",
-                headers={"WWW-Authenticate": 'Basic realm="cc-daemon", charset="UTF-8"'},
-            )
-        else:
-            try:
-                response = await handler(request)
-            except web.HTTPException as exc:  # 404, 405: raised, with our headers
-                exc.headers.update(_HEADERS)
-                raise
-        response.headers.update(_HEADERS)
-        return response
 
     async def page(request: web.Request) -> web.Response:
         body, kind = pages[request.path]
@@ -177,10 +222,12 @@ def build_app(sources: Sources) -> web.Application:
         )
 
     async def api_casts(request: web.Request) -> web.Response:
-        return await _journal(gate, journaldata.survey_casts, sources.journal, _int(request, "n"))
+        n = number(request.match_info["n"], "survey")
+        return await _journal(gate, journaldata.survey_casts, sources.journal, n)
 
     async def api_profile(request: web.Request) -> web.Response:
-        return await _journal(gate, journaldata.cast_profile, sources.journal, _int(request, "n"))
+        n = number(request.match_info["n"], "cast")
+        return await _journal(gate, journaldata.cast_profile, sources.journal, n)
 
     async def api_latest(request: web.Request) -> web.Response:
         return await _journal(
@@ -189,46 +236,51 @@ def build_app(sources: Sources) -> web.Application:
 
     async def api_events(request: web.Request) -> web.Response:
         text = request.query.get("survey")
-        if text is not None and not text.isdigit():
-            return _json_error(400, f"survey={text!r}: a survey's number, e.g. survey=3")
-        survey = None if text is None else int(text)
+        survey = None if text is None else number(text, "survey")
         return await _journal(gate, journaldata.events, sources.journal, survey)
 
-    async def download(request: web.Request) -> web.Response:
-        n, fmt = _int(request, "n"), request.match_info["fmt"]
-        try:
-            async with gate:
-                body = await asyncio.to_thread(downloads.survey_file, sources.journal, n, fmt)
-        except journaldata.NotFound as exc:
-            return _json_error(404, str(exc))
-        except OptionalDependencyError as exc:
-            return _json_error(503, f"{exc} (on the Pi: pip install 'cc-daemon[netcdf]')")
-        except StoreError as exc:
-            return _json_error(503, str(exc))
-        except ValueError as exc:  # NetCDF of a survey without a cast
-            return _json_error(404, f"survey {n}: {exc}")
-        return web.Response(
-            body=body,
-            headers={
-                "Content-Type": downloads.FORMATS[fmt],
-                "Content-Disposition": f'attachment; filename="survey-{n}.{fmt}"',
-            },
-        )
+    async def download(request: web.Request) -> web.StreamResponse:
+        n, fmt = number(request.match_info["n"], "survey"), request.match_info["fmt"]
+        async with download_turns:
+            pipe = Pipe(asyncio.get_running_loop())
+            chunks = pipe.run(download_threads, downloads.writer(sources.journal, n, fmt))
+            try:
+                first = await _first(chunks, n)
+                response = web.StreamResponse(
+                    headers={
+                        "Content-Type": downloads.FORMATS[fmt],
+                        "Content-Disposition": f'attachment; filename="survey-{n}.{fmt}"',
+                    }
+                )
+                with contextlib.suppress(ConnectionError):
+                    await response.prepare(request)
+                    await _send(request, response, first, chunks, limits.send_stall_s)
+            finally:
+                await chunks.aclose()
+        return response
 
-    async def stop_status(app: web.Application) -> None:
+    async def stop(app: web.Application) -> None:
         status.close()
+        if auth is not None:
+            auth.close()
+        download_threads.shutdown(wait=True, cancel_futures=True)
 
-    app = web.Application(middlewares=[guard])
-    app.on_cleanup.append(stop_status)
+    app = web.Application(middlewares=[middleware(auth, set(sources.hosts), sources.journal)])
+    app.on_response_prepare.append(add_headers)
+    app.on_cleanup.append(stop)
+    # GET only, HEAD too: a HEAD of a download would build it to send nothing.
     for path in pages:
-        app.router.add_get(path, page)
-    app.router.add_get("/api/status", api_status)
-    app.router.add_get("/api/surveys", api_surveys)
-    app.router.add_get("/api/surveys/{n}/casts", api_casts)
-    app.router.add_get("/api/casts/{n}/profile", api_profile)
-    app.router.add_get("/api/events", api_events)
-    app.router.add_get("/api/latest", api_latest)
-    app.router.add_get(r"/download/survey/{n}.{fmt:csv|geojson|nc}", download)
+        app.router.add_get(path, page, allow_head=False)
+    for path, handler in [
+        ("/api/status", api_status),
+        ("/api/surveys", api_surveys),
+        ("/api/surveys/{n}/casts", api_casts),
+        ("/api/casts/{n}/profile", api_profile),
+        ("/api/events", api_events),
+        ("/api/latest", api_latest),
+        (r"/download/survey/{n}.{fmt:csv|geojson|nc}", download),
+    ]:
+        app.router.add_get(path, handler, allow_head=False)
     return app
 
 
@@ -237,18 +289,30 @@ def split_listen(listen: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-async def serve(sources: Sources, listen: str, *, ready: Callable[[str], None]) -> None:
-    """Serve until cancelled. OSError if the address cannot be bound."""
-    runner = web.AppRunner(
-        build_app(sources), access_log=None, handle_signals=False, shutdown_timeout=1.0
-    )
+async def serve(
+    sources: Sources,
+    listen: str,
+    *,
+    ready: Callable[[str, int], None],
+    limits: Limits | None = None,
+) -> None:
+    """Serve until cancelled. OSError if the address cannot be bound. `ready` is told
+    the address and how many connections the page will hold."""
+    limits = limits or Limits()
+    host, port = split_listen(listen)
+    hosts = default_names(host, sources.hosts)
+    app = build_app(dataclasses.replace(sources, hosts=frozenset(hosts)), limits)
+    runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=1.0)
     await runner.setup()
+    listener: Listener | None = None
     try:
-        host, port = split_listen(listen)
-        site = web.TCPSite(runner, host, port)
-        await site.start()
-        bound = runner.addresses[0]  # the real port when asked for port 0
-        ready(f"{host if ':' not in host else f'[{host}]'}:{bound[1]}")
+        assert runner.server is not None
+        listener = Listener(runner.server, open_sockets(host, port), limits)
+        listener.start()
+        bound = listener.sockets[0].getsockname()[1]  # the real port when asked for port 0
+        ready(f"{host if ':' not in host else f'[{host}]'}:{bound}", listener.connections.cap)
         await asyncio.Event().wait()
     finally:
+        if listener is not None:
+            await listener.close()
         await runner.cleanup()
