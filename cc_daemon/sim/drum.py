@@ -148,6 +148,22 @@ class DrumFaults:
     supply_v: float | None = None  # the supply reads this, volts (a flat battery, a bad divider)
 
 
+def _state_at(pin: Any, t: float, since: float) -> Any:
+    """A mock pin's state at monotonic time `t`, from its record of changes (gpiozero's
+    `states`: each the time since the one before, the last at `_last_change`); its state
+    now if it changed at or after `since`, or if its record is not one to read."""
+    last, now_state = pin._last_change, pin.state
+    if last >= since or t >= last:
+        return now_state
+    states = list(pin.states)  # a snapshot: another thread may append as we read
+    at = last
+    for state in reversed(states[1:]):
+        if t >= at:
+            return state.state
+        at -= state.timestamp
+    return states[0].state if states else now_state
+
+
 class SimulatedDrum:
     def __init__(
         self,
@@ -191,6 +207,7 @@ class SimulatedDrum:
         self._noise: random.Random | None = None  # faults.current_noise_seed's, once used
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._moved_to = time.monotonic()  # the drum has moved as the motor ran until then
 
     @classmethod
     def factory_for(cls, cfg: WinchGpioSettings) -> MockWinchFactory:
@@ -236,26 +253,50 @@ class SimulatedDrum:
             self.adc.close()
 
     def _run(self) -> None:
-        last = time.monotonic()
         while not self._stop.wait(self.step_s):
-            now = time.monotonic()
-            self.step(now - last)
-            last = now
+            self.catch_up()
+
+    def catch_up(self) -> None:
+        """Move the drum over the time since it last moved (its thread does, every
+        `step_s`; a test whose drum thread is closed may, to play a late thread)."""
+        now = time.monotonic()
+        self.step(now - self._moved_to)
 
     def step(self, dt: float) -> None:
-        """Advance the drum by `dt` seconds of the motor, reading the H-bridge again at
-        least every quarter pulse of line: a thread that ran late (a loaded machine)
-        must not carry the probe past the pulse at which the winch stopped the motor.
-        A real drum stops there; a simulation that moved the whole `dt` at once did
-        not (1.155 m out against an end of line at 1.0 m and 0.141 m a pulse)."""
-        quarter_s = self.drum.metres_per_pulse / 4 / max(self.full_speed_m_s, 1e-9)
-        while dt > quarter_s:
-            self._advance(quarter_s)
-            dt -= quarter_s
-        self._advance(dt)
+        """Advance the drum over the last `dt` seconds as the motor really ran in them.
 
-    def _advance(self, dt: float) -> None:
-        direction, duty = self.motor()
+        On a loaded machine this thread can run late, by tens of milliseconds or more;
+        a real drum does not wait for it. So each quarter pulse of line is moved at the
+        H-bridge's state *at that moment*, from the mock pins' own record of their
+        changes, and a change the winch makes while this step runs (a stop at a pulse
+        it has just seen) holds from the pulse on, as it would have on time. A drum
+        moved the whole `dt` at the state it read at the end went past the pulse at
+        which the winch stopped it (1.155 m out against an end of line at 1.0 m) and
+        misread a soft start, so the winch's dead reckoning looked wrong."""
+        began = time.monotonic()
+        self._moved_to = began
+        if dt <= 0:
+            self._advance(0.0, self.motor())  # the switch's state, nothing moved
+            return
+        quarter_s = self.drum.metres_per_pulse / 4 / max(self.full_speed_m_s, 1e-9)
+        t = began - dt
+        while t < began:
+            sub = min(quarter_s, began - t)
+            t += sub
+            self._advance(sub, self._motor_at(t, since=began))
+
+    def _motor_at(self, t: float, *, since: float) -> tuple[int, float]:
+        """(direction, duty) as the pins stood at `t`; a pin changed at or after
+        `since` (during this step: the winch reacting to a pulse of it) as it is now."""
+        duty = float(_state_at(self._enable, t, since))
+        out = bool(_state_at(self._pay_out, t, since))
+        into = bool(_state_at(self._haul_in, t, since))
+        if duty <= 0 or out == into:
+            return 0, 0.0
+        return (1 if out else -1), duty
+
+    def _advance(self, dt: float, motor: tuple[int, float]) -> None:
+        direction, duty = motor
         with self._lock:
             line = self._line
             if direction and not self._jammed(direction):
