@@ -90,6 +90,23 @@ def test_release_gives_the_handlers_back_and_raises_what_was_held(restored: None
     assert seen == [signal.SIGUSR1]
 
 
+def test_the_daemon_done_ignores_its_signals_to_the_last_instant(restored: None) -> None:
+    # The interpreter's exit gives Python handlers their default action back: a SIGHUP
+    # then would end a clean stop by the signal (test_signals_e2e.py, end to end).
+    done = SignalHold.hold()
+    done.ignore_from_now()
+    assert {signal.getsignal(signum) for signum in HELD} == {signal.SIG_IGN}
+    signal.raise_signal(signal.SIGHUP)  # neither counted nor fatal
+    assert done.pending == {}
+    # A data command gave its handlers back: the exit is as if nothing had been held.
+    for signum in HELD:
+        signal.signal(signum, signal.SIG_DFL)
+    command = SignalHold.hold()
+    command.release()
+    command.ignore_from_now()
+    assert {signal.getsignal(signum) for signum in HELD} == {signal.SIG_DFL}
+
+
 def test_a_data_command_keeps_ctrl_c_as_a_quiet_130(
     restored: None, capsys: pytest.CaptureFixture[str]
 ) -> None:
