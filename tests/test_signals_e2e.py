@@ -56,11 +56,12 @@ def rewrite(daemon: DaemonProcess, **sections: object) -> None:
 
 
 async def start_a_cast(daemon: DaemonProcess) -> None:
-    """Send a station and return once the probe has left home: mid-cast."""
+    """Send a station and return once the probe has left home (10 cm down, past the
+    switch's 5 mm), descending: mid-cast."""
     assert daemon.port is not None
     await daemon.port.send(station())
     await daemon.expect(Ack, DEADLINE_S)
-    await until_probe_down(daemon)
+    await until_probe_down(daemon, 100)
 
 
 async def until_logged(daemon: DaemonProcess, event: str, count: int = 1) -> None:

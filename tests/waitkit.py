@@ -51,7 +51,7 @@ def until_sync(
     return found
 
 
-async def until_probe_down(daemon: DaemonProcess, depth_mm: int = 1) -> int:
+async def until_probe_down(daemon: DaemonProcess, depth_mm: int) -> int:
     """Ask S until the daemon's R-P puts the probe `depth_mm` or more down; that depth.
     Where a cast is by the daemon's own word, not after a guessed time: at 1 m/s, 2 m
     down is 2 s or more after the P-M however loaded the machine, and the rest of
