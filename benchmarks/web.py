@@ -6,7 +6,9 @@ autopilot side asks S -> R-P continuously, first with no page open, then while
 ten clients poll /api/status once a second (what ten open pages do), then while
 ten clients poll it as fast as they can. Printed: the first load's bytes (the
 page, its CSS and JS, and the first status and survey answers), R-P latency
-(median, p99, max) in each phase, and the page's own /api/status answer times.
+(median, p99, max) in each phase, and the page's own /api/status answer times,
+also while eight clients download the survey's CSV over and over (journal work,
+queued `JOURNAL_AT_ONCE` at a time: the status must not wait behind it).
 
     python -m benchmarks.web      (or: make bench)
 """
@@ -26,17 +28,19 @@ from pathlib import Path
 
 from benchmarks.daemon import daemon_config, drain, percentile, start_daemon, wait_first_answer
 from benchmarks.status_flood import describe, latencies
+from cc_daemon.cli.web.server import JOURNAL_AT_ONCE
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.store import Journal
 from cc_daemon.store.synthetic import FakeClock, write_survey
 
 CLIENTS = 10
 PHASE_S = 10.0
+DOWNLOADERS = 8
 FIRST_LOAD = ["", "static/page.css", "static/page.js", "api/status", "api/latest", "api/surveys"]
 
 
-def get(url: str) -> bytes:
-    with urllib.request.urlopen(url, timeout=5) as answer:
+def get(url: str, timeout: float = 5.0) -> bytes:
+    with urllib.request.urlopen(url, timeout=timeout) as answer:
         body: bytes = answer.read()
     return body
 
@@ -69,6 +73,41 @@ def pollers(url: str, period_s: float, stop: threading.Event, times: list[float]
         t.start()
     for t in threads:
         t.join()
+
+
+def status_beside_downloads(url: str, survey: int) -> None:
+    """The page's /api/status answer times while DOWNLOADERS clients download the
+    survey's CSV over and over, JOURNAL_AT_ONCE at a time (tests/test_web.py checks
+    the status is answered while every journal turn is stuck; this is the figure)."""
+    stop = threading.Event()
+    download_ms: list[float] = []
+
+    def download() -> None:
+        while not stop.is_set():
+            began = time.perf_counter()
+            get(url + f"download/survey/{survey}.csv", timeout=60)
+            download_ms.append((time.perf_counter() - began) * 1000)
+
+    threads = [threading.Thread(target=download) for _ in range(DOWNLOADERS)]
+    for t in threads:
+        t.start()
+    time.sleep(0.5)
+    times: list[float] = []
+    end = time.monotonic() + PHASE_S
+    while time.monotonic() < end:  # 5 a second: past the 0.5 s sharing, some read anew
+        began = time.perf_counter()
+        get(url + "api/status")
+        times.append((time.perf_counter() - began) * 1000)
+        time.sleep(0.2)
+    stop.set()
+    for t in threads:
+        t.join()
+    print(
+        f"  /api/status beside {DOWNLOADERS} CSV downloads ({JOURNAL_AT_ONCE} at a time, "
+        f"{len(download_ms)} done, median {statistics.median(download_ms):.0f} ms each): "
+        f"n={len(times)} median {statistics.median(times):.2f} ms "
+        f"p99 {percentile(times, 99):.2f} ms max {max(times):.2f} ms"
+    )
 
 
 def main() -> int:
@@ -115,6 +154,7 @@ def main() -> int:
                     f"  /api/status {name}: n={len(times)} median "
                     f"{statistics.median(times):.2f} ms p99 {percentile(times, 99):.2f} ms"
                 )
+            status_beside_downloads(url, survey)
         finally:
             web.terminate()
             web.wait(10)

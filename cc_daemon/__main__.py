@@ -11,9 +11,13 @@ from cc_daemon.ground.signals import SignalHold
 
 def main() -> int:
     held = SignalHold.hold()
-    from cc_daemon.cli.app import main as command_line
+    try:
+        from cc_daemon.cli.app import main as command_line
 
-    return command_line(held=held)
+        return command_line(held=held)
+    finally:
+        # Still held (the daemon's run): ignored to the last instant of the process.
+        held.ignore_from_now()
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 
 from cc_daemon.daemon.status_server import StatusServer
+from tests.waitkit import DEADLINE_S
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path("/usr/bin/chromedriver")
@@ -91,10 +92,10 @@ def status_socket(path: Path, document: dict[str, Any]) -> Iterator[StatusServer
     thread.start()
     server = StatusServer(path, lambda: document)
     try:
-        asyncio.run_coroutine_threadsafe(server.start(), loop).result(5)
+        asyncio.run_coroutine_threadsafe(server.start(), loop).result(DEADLINE_S)
         yield server
     finally:
-        asyncio.run_coroutine_threadsafe(server.close(), loop).result(5)
+        asyncio.run_coroutine_threadsafe(server.close(), loop).result(DEADLINE_S)
         loop.call_soon_threadsafe(loop.stop)
-        thread.join(5)
+        thread.join(DEADLINE_S)
         loop.close()

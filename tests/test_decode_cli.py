@@ -21,6 +21,7 @@ import structlog
 
 from cc_daemon.cli.app import main
 from tests.test_protocol_examples import EXAMPLES, MANUAL_P_T, P_G
+from tests.waitkit import DEADLINE_S
 
 ROOT = Path(__file__).resolve().parents[1]
 P_T_HEX = EXAMPLES["P-T"][0]
@@ -250,7 +251,7 @@ def cc_daemon(*args: str, stdin: bytes) -> subprocess.CompletedProcess[bytes]:
         input=stdin,
         capture_output=True,
         cwd=ROOT,
-        timeout=30,
+        timeout=DEADLINE_S,
         check=False,
     )
 
@@ -339,7 +340,7 @@ def test_at_a_terminal_decode_says_what_it_waits_for_and_ctrl_c_is_quiet() -> No
                 os.write(master, b"\x04")
             else:  # the prompt is out: decode is reading, with its own Ctrl-C back
                 proc.send_signal(signal.SIGINT)
-            _, err = proc.communicate(timeout=20)
+            _, err = proc.communicate(timeout=DEADLINE_S)
         finally:
             if proc.poll() is None:  # a failure above: never into the next test
                 proc.kill()

@@ -8,7 +8,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -19,6 +18,7 @@ from cc_daemon.cli.decode import looks_like_hex
 from tests.daemonkit import REPO
 from tests.test_live_decode_and_systemd import _read_lines
 from tests.test_protocol_examples import EXAMPLES
+from tests.waitkit import DEADLINE_S
 
 EXCHANGE = b"".join(
     bytes.fromhex(EXAMPLES[name][0]) for name in ("P-T", "P-M", "R-O", "R-M", "P-S", "R-P", "R-F")
@@ -129,7 +129,7 @@ def test_a_closed_pipe_ends_decode_quietly(tmp_path: Path) -> None:
         proc.stdout.close()
         err = proc.stderr.read().decode()
         proc.stderr.close()
-        assert proc.wait(30) == 0, err
+        assert proc.wait(DEADLINE_S) == 0, err
     assert "Traceback" not in err and "BrokenPipe" not in err
 
 
@@ -142,7 +142,7 @@ def test_decode_port_refuses_a_port_another_process_has_open(tmp_path: Path) -> 
             env=dict(os.environ, PYTHONPATH=str(REPO)),
             capture_output=True,
             text=True,
-            timeout=30,
+            timeout=DEADLINE_S,
             check=False,
         )
     finally:
@@ -161,10 +161,10 @@ def test_decode_port_reads_a_port_nobody_else_has_open() -> None:
     proc = cc_daemon("decode", "--port", name, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         assert proc.stderr is not None
-        assert any("open" in line for line in _read_lines(proc.stderr, 1, 10))
-        time.sleep(0.2)
+        # Said once its Ctrl-C handler is in place (`live_decode`): no need to wait more.
+        assert any("open" in line for line in _read_lines(proc.stderr, 1, DEADLINE_S))
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(10) == 0
+        assert proc.wait(DEADLINE_S) == 0
         assert proc.stderr.read().decode().startswith("# 0 frames, 0 errors")
     finally:
         if proc.poll() is None:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from cc_daemon.drivers import fdserial
 from cc_daemon.sim.pty import PtyPair
+from tests.waitkit import DEADLINE_S, until
 
 
 class Recorder(asyncio.Protocol):
@@ -24,7 +25,7 @@ class Recorder(asyncio.Protocol):
         self.lost.set_result(exc)
 
 
-async def _read_master(fd: int, size: int, timeout: float = 5.0) -> bytes:
+async def _read_master(fd: int, size: int, timeout: float = DEADLINE_S) -> bytes:
     out = bytearray()
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout
@@ -53,13 +54,11 @@ async def test_a_write_bigger_than_the_kernel_buffer_arrives_whole_and_in_order(
         assert got == big + b"after"
         assert transport.get_write_buffer_size() == 0
         os.write(pty.master_fd, b"PS\x00H\x00\xeb")
-        for _ in range(500):
-            if protocol.data:
-                break
-            await asyncio.sleep(0.002)
+        await until(lambda: len(protocol.data) >= 6)  # type: ignore[attr-defined]
         assert bytes(protocol.data) == b"PS\x00H\x00\xeb"  # type: ignore[attr-defined]
         transport.close()
-        assert await asyncio.wait_for(protocol.lost, 2) is None  # type: ignore[attr-defined]
+        lost = await asyncio.wait_for(protocol.lost, DEADLINE_S)  # type: ignore[attr-defined]
+        assert lost is None
     finally:
         pty.close()
 
@@ -72,7 +71,7 @@ async def test_an_unplug_ends_the_connection_with_the_error(tmp_path: Path) -> N
             loop, Recorder, str(pty.path), baudrate=9600
         )
         pty.unplug()
-        exc = await asyncio.wait_for(protocol.lost, 2)  # type: ignore[attr-defined]
+        exc = await asyncio.wait_for(protocol.lost, DEADLINE_S)  # type: ignore[attr-defined]
         assert isinstance(exc, OSError | fdserial.SerialGone)
         assert transport.is_closing()
         transport.write(b"RO\x00H\x00\xe9")  # after the loss: dropped, never raises

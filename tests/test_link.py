@@ -5,12 +5,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from cc_daemon.drivers.link import SerialLink
 from cc_daemon.sim.pty import PtyPair
+from tests.waitkit import until
 
 
 def test_backoff_grows_to_the_cap_with_bounded_jitter() -> None:
@@ -21,12 +23,17 @@ def test_backoff_grows_to_the_cap_with_bounded_jitter() -> None:
     assert [low.backoff_delay(n) for n in (1, 9)] == pytest.approx([0.15, 3.75])
 
 
-async def _wait_for(predicate: object, timeout: float = 5.0) -> None:
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not predicate():  # type: ignore[operator]
-        if asyncio.get_running_loop().time() > deadline:
-            raise AssertionError("condition not met in time")
-        await asyncio.sleep(0.01)
+async def _read_master(pty: PtyPair, size: int) -> bytes:
+    """The next `size` bytes the link wrote, as soon as they are there."""
+    got = bytearray()
+
+    def read() -> bool:
+        with contextlib.suppress(BlockingIOError):
+            got.extend(os.read(pty.master_fd, size - len(got)))
+        return len(got) >= size
+
+    await until(read, f"{size} bytes written by the link")
+    return bytes(got)
 
 
 async def test_reads_writes_survives_an_unplug_and_reopens(tmp_path: Path) -> None:
@@ -42,26 +49,26 @@ async def test_reads_writes_survives_an_unplug_and_reopens(tmp_path: Path) -> No
     )
     task = asyncio.create_task(link.run())
     try:
-        await _wait_for(lambda: link.up)
+        await until(lambda: link.up)
         assert link.write(b"RO\x00H\x00\xe9")
-        await asyncio.sleep(0.1)
-        assert os.read(pty.master_fd, 64) == b"RO\x00H\x00\xe9"
+        assert await _read_master(pty, 6) == b"RO\x00H\x00\xe9"
         os.write(pty.master_fd, b"PS\x00H\x00\xeb")
-        await _wait_for(lambda: bytes(received) == b"PS\x00H\x00\xeb")
+        await until(lambda: bytes(received) == b"PS\x00H\x00\xeb")
 
         pty.unplug()
-        await _wait_for(lambda: not link.up)
+        await until(lambda: not link.up)
         assert link.write(b"RO\x00H\x00\xe9") is False  # nothing is queued while down
         assert link.frames_dropped == 1
-        await asyncio.sleep(0.5)  # several failed reopen attempts: the path is gone
+        # Several failed reopen attempts: the path is gone.
+        await until(lambda: link.waiting.attempts >= 3)
         pty.replug()
-        await _wait_for(lambda: link.up)
+        await until(lambda: link.up)
         os.write(pty.master_fd, b"PS\x00I\x00\xec")
-        await _wait_for(lambda: bytes(received).endswith(b"PS\x00I\x00\xec"))
-        # The frame written while down never arrives after the reopen.
-        await asyncio.sleep(0.05)
-        with contextlib.suppress(BlockingIOError):
-            assert b"RO" not in os.read(pty.master_fd, 64)
+        await until(lambda: bytes(received).endswith(b"PS\x00I\x00\xec"))
+        # The frame written while down never arrives after the reopen: the first
+        # bytes on the new line are the next frame written.
+        assert link.write(b"RP\x00I\x00\x00\x00\xeb")
+        assert await _read_master(pty, 8) == b"RP\x00I\x00\x00\x00\xeb"
     finally:
         task.cancel()
         with contextlib.suppress(asyncio.CancelledError):
@@ -83,11 +90,11 @@ async def test_a_handler_exception_does_not_stop_reading(tmp_path: Path) -> None
     link = SerialLink(str(pty.path), on_data=handler)
     task = asyncio.create_task(link.run())
     try:
-        await _wait_for(lambda: link.up)
+        await until(lambda: link.up)
         os.write(pty.master_fd, b"first")
-        await _wait_for(lambda: len(calls) == 1)
+        await until(lambda: len(calls) == 1)
         os.write(pty.master_fd, b"second")
-        await _wait_for(lambda: len(calls) == 2)
+        await until(lambda: len(calls) == 2)
         assert link.up
     finally:
         task.cancel()
@@ -135,18 +142,21 @@ def _fake_port(monkeypatch: pytest.MonkeyPatch, up_for_s: float, failures: list[
     monkeypatch.setattr("cc_daemon.drivers.link.fdserial.create_serial_connection", create)
 
 
-async def _run_for(link: SerialLink, seconds: float) -> None:
+async def _run_until(link: SerialLink, done: Callable[[], bool]) -> None:
+    """Run the link until `done()` holds (however long the machine takes), then stop it."""
     task = asyncio.create_task(link.run())
-    await asyncio.sleep(seconds)
-    task.cancel()
-    with contextlib.suppress(asyncio.CancelledError):
-        await task
+    try:
+        await until(done)
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
 
 
 async def test_a_flapping_port_keeps_backing_off(monkeypatch: pytest.MonkeyPatch) -> None:
     _fake_port(monkeypatch, up_for_s=0.0, failures=[])
     link = _RecordingLink(reconnect_initial_s=0.2, reconnect_max_s=5.0)
-    await _run_for(link, 0.2)
+    await _run_until(link, lambda: len(link.attempts) >= 5)
     assert link.attempts[:5] == [1, 2, 3, 4, 5]
 
 
@@ -155,8 +165,7 @@ async def test_a_port_that_stayed_up_starts_again_from_the_shortest_delay(
 ) -> None:
     _fake_port(monkeypatch, up_for_s=0.03, failures=[])
     link = _RecordingLink(reconnect_initial_s=0.001, reconnect_max_s=0.01)
-    await _run_for(link, 0.3)
-    assert len(link.attempts) >= 3
+    await _run_until(link, lambda: len(link.attempts) >= 3)
     assert set(link.attempts) == {1}
 
 
@@ -169,9 +178,8 @@ async def test_any_error_opening_the_port_is_retried(monkeypatch: pytest.MonkeyP
         failures=[termios.error(5, "Input/output error"), RuntimeError("odd driver")],
     )
     link = _RecordingLink()
-    await _run_for(link, 0.1)
-    assert link.attempts[:2] == [1, 2]
-    assert link.opens == 1
+    await _run_until(link, lambda: link.opens == 1)
+    assert link.attempts == [1, 2]
 
 
 async def test_a_port_locked_by_another_process_names_the_holder(tmp_path: Path) -> None:
@@ -207,7 +215,7 @@ async def test_a_port_locked_by_another_process_names_the_holder(tmp_path: Path)
         )
         task = asyncio.create_task(link.run())
         try:
-            await _wait_for(lambda: len(said) >= 2)
+            await until(lambda: len(said) >= 2)
         finally:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):

@@ -18,6 +18,7 @@ from cc_daemon.core.protocol import Ack, DepthReport, ProbePositionRequest, enco
 from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.sim.pty import PtyPair
 from tests.daemonkit import REPO
+from tests.waitkit import DEADLINE_S
 
 
 def _read_lines(stream: object, count: int, timeout: float) -> list[str]:
@@ -57,11 +58,11 @@ def test_decode_port_prints_both_directions_until_ctrl_c(tmp_path: Path) -> None
         )
         try:
             assert proc.stderr is not None and proc.stdout is not None
-            assert any("open" in line for line in _read_lines(proc.stderr, 1, 10))
+            assert any("open" in line for line in _read_lines(proc.stderr, 1, DEADLINE_S))
             os.write(pty.master_fd, encode(ProbePositionRequest(72)) + b"\x00")
             os.write(pty.master_fd, bytes.fromhex("50 53 00 48 00 EC") + encode(Ack(72)))
             os.write(pty.master_fd, encode(DepthReport(73, 1500)))
-            lines = _read_lines(proc.stdout, 4, 5)
+            lines = _read_lines(proc.stdout, 4, DEADLINE_S)
             objs = [json.loads(line) for line in lines]
             assert objs == [
                 {"frame": "P-S", "timestamp_s": 72},
@@ -74,7 +75,7 @@ def test_decode_port_prints_both_directions_until_ctrl_c(tmp_path: Path) -> None
                 {"frame": "R-M", "timestamp_s": 73, "depth_mm": 1500},
             ]
             proc.send_signal(signal.SIGINT)
-            assert proc.wait(10) == 1  # errors were seen
+            assert proc.wait(DEADLINE_S) == 1  # errors were seen
             summary = proc.stderr.read().decode()
             assert "3 frames, 1 errors" in summary
         finally:

@@ -19,6 +19,7 @@ from cc_daemon.daemon.preflight import (
 )
 from cc_daemon.sim.pty import PtyPair
 from tests.daemonkit import REPO
+from tests.waitkit import DEADLINE_S
 
 PREFIX = "cc-daemon: bad configuration: "
 
@@ -111,7 +112,7 @@ def run_daemon(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
         text=True,
         env=env,
         cwd=tmp_path,
-        timeout=30,
+        timeout=DEADLINE_S,
         check=False,
     )
 

@@ -28,6 +28,7 @@ from cc_daemon.daemon.status_report import StatusInputs
 from cc_daemon.ground.signals import HELD, IGNORED, LEFT_ALONE, SignalHold, signal_name
 from cc_daemon.store import JournalHealth
 from tests.daemonkit import REPO
+from tests.waitkit import DEADLINE_S
 
 
 @pytest.fixture
@@ -89,6 +90,23 @@ def test_release_gives_the_handlers_back_and_raises_what_was_held(restored: None
     assert seen == [signal.SIGUSR1]
 
 
+def test_the_daemon_done_ignores_its_signals_to_the_last_instant(restored: None) -> None:
+    # The interpreter's exit gives Python handlers their default action back: a SIGHUP
+    # then would end a clean stop by the signal (test_signals_e2e.py, end to end).
+    done = SignalHold.hold()
+    done.ignore_from_now()
+    assert {signal.getsignal(signum) for signum in HELD} == {signal.SIG_IGN}
+    signal.raise_signal(signal.SIGHUP)  # neither counted nor fatal
+    assert done.pending == {}
+    # A data command gave its handlers back: the exit is as if nothing had been held.
+    for signum in HELD:
+        signal.signal(signum, signal.SIG_DFL)
+    command = SignalHold.hold()
+    command.release()
+    command.ignore_from_now()
+    assert {signal.getsignal(signum) for signum in HELD} == {signal.SIG_DFL}
+
+
 def test_a_data_command_keeps_ctrl_c_as_a_quiet_130(
     restored: None, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -131,7 +149,7 @@ def test_every_signal_is_caught_before_anything_heavy_is_imported() -> None:
         [sys.executable, "-c", _FIRST_HEAVY_IMPORT],
         capture_output=True,
         text=True,
-        timeout=30,
+        timeout=DEADLINE_S,
         cwd=REPO,
         env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"},
         check=True,
@@ -193,17 +211,25 @@ def test_the_table_on_the_loop(restored: None) -> None:
     signal.raise_signal(signal.SIGHUP)  # before the loop: held
 
     async def serve() -> None:
+        # Each signal's `handle` is queued on the loop (call_soon_threadsafe) before
+        # `raise_signal` returns: one turn of the loop runs it, however slow the machine.
+        async def handled() -> None:
+            await asyncio.sleep(0)
+
         with table.delivered(held):
-            await asyncio.sleep(0.01)
+            await handled()
             assert reloads == [1]  # the held SIGHUP, once the loop runs
             for signum in (signal.SIGUSR1, signal.SIGUSR2, signal.SIGALRM, signal.SIGQUIT):
                 signal.raise_signal(signum)
-            await asyncio.sleep(0.01)
+            await handled()
+            assert daemon.shutdowns == [False]
             signal.raise_signal(signal.SIGTERM)  # a repeat changes nothing
             signal.raise_signal(signal.SIGINT)  # Ctrl-C after a SIGQUIT: not a second Ctrl-C
-            await asyncio.sleep(0.01)
+            await handled()
+            assert daemon.shutdowns == [False]
             signal.raise_signal(signal.SIGINT)  # the second Ctrl-C: at once
-            await asyncio.sleep(0.01)
+            await handled()
+            assert daemon.shutdowns == [False, True]
 
     with structlog.testing.capture_logs() as logs:
         asyncio.run(serve())

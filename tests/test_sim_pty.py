@@ -26,6 +26,7 @@ from cc_daemon.core.protocol import (
 from cc_daemon.sim.noise import BitFlipper
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
+from tests.waitkit import DEADLINE_S, until
 
 EVERY_BYTE = bytes(range(256)) + bytes([0x0D, 0x0A, 0x11, 0x13, 0x03, 0x1A, 0x1C, 0x04, 0x7F])
 
@@ -34,7 +35,7 @@ def _open_slave(path: Path) -> int:
     return os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
 
 
-def _read_exactly(fd: int, n: int, timeout: float = 2.0) -> bytes:
+def _read_exactly(fd: int, n: int, timeout: float = DEADLINE_S) -> bytes:
     out = bytearray()
     deadline = time.monotonic() + timeout
     while len(out) < n:
@@ -48,7 +49,7 @@ def _read_exactly(fd: int, n: int, timeout: float = 2.0) -> bytes:
 
 
 def _assert_hung_up(fd: int) -> None:
-    ready, _, _ = select.select([fd], [], [], 1.0)
+    ready, _, _ = select.select([fd], [], [], DEADLINE_S)
     assert ready  # a hang-up wakes the reader
     try:
         outcome: bytes | int | None = os.read(fd, 16)
@@ -57,9 +58,12 @@ def _assert_hung_up(fd: int) -> None:
     assert outcome in (b"", errno.EIO)
 
 
-def _nothing_to_read(fd: int, wait: float = 0.1) -> bool:
-    ready, _, _ = select.select([fd], [], [], wait)
-    return not ready
+def _nothing_before(reader: int, writer: int) -> bool:
+    """Whether `reader` had nothing to read (no echo) before a marker `writer` sends
+    now: the bytes of one side arrive in order, so the marker proves the moment has
+    passed, however slowly the kernel moved them."""
+    os.write(writer, b"!")
+    return _read_exactly(reader, 1) == b"!"
 
 
 @pytest.fixture
@@ -80,7 +84,7 @@ def test_every_byte_value_crosses_master_to_slave_unchanged_without_echo(pair: P
     try:
         os.write(pair.master_fd, EVERY_BYTE)
         assert _read_exactly(slave, len(EVERY_BYTE)) == EVERY_BYTE
-        assert _nothing_to_read(pair.master_fd)  # no echo back to the autopilot
+        assert _nothing_before(pair.master_fd, slave)  # no echo back to the autopilot
     finally:
         os.close(slave)
 
@@ -90,7 +94,7 @@ def test_every_byte_value_crosses_slave_to_master_unchanged(pair: PtyPair) -> No
     try:
         os.write(slave, EVERY_BYTE)
         assert _read_exactly(pair.master_fd, len(EVERY_BYTE)) == EVERY_BYTE
-        assert _nothing_to_read(slave)
+        assert _nothing_before(slave, pair.master_fd)
     finally:
         os.close(slave)
 
@@ -156,7 +160,9 @@ def test_master_survives_the_daemon_closing_the_port(pair: PtyPair) -> None:
     # autopilot's end must not see that as a hang-up.
     slave = _open_slave(pair.path)
     os.close(slave)
-    assert _nothing_to_read(pair.master_fd)
+    # A last close would hang the master up there and then (no waiting: the kernel
+    # marks it in the close itself).
+    assert not select.select([pair.master_fd], [], [], 0)[0]
     os.write(pair.master_fd, b"P")
 
 
@@ -168,7 +174,7 @@ async def test_frameport_round_trip_between_the_two_ends(pair: PtyPair) -> None:
         m = StartMeasuring(72, -37260579, 404506308, 702385, 8219, 100)
         await autopilot.send(m)
         await autopilot.send(ProbePositionRequest(73))
-        got = [await daemon_side.receive(2.0) for _ in range(2)]
+        got = [await daemon_side.receive(DEADLINE_S) for _ in range(2)]
         assert [r.message for r in got if r] == [m, ProbePositionRequest(73)]
         assert got[0] is not None
         assert got[0].raw == encode(m)
@@ -177,7 +183,7 @@ async def test_frameport_round_trip_between_the_two_ends(pair: PtyPair) -> None:
         await daemon_side.send(Ack(72))
         await daemon_side.send(DepthReport(73, 15820))
         await daemon_side.send(encode(Finished(74, 0)))  # raw bytes go as they are
-        frames = [await autopilot.receive(2.0) for _ in range(3)]
+        frames = [await autopilot.receive(DEADLINE_S) for _ in range(3)]
         assert [r.message for r in frames if r] == [
             Ack(72),
             DepthReport(73, 15820),
@@ -200,7 +206,7 @@ async def test_frameport_reports_corrupt_frames_and_keeps_going(pair: PtyPair) -
         bad = bytearray(encode(DepthReport(72, 15820)))
         bad[-1] ^= 0x01
         os.write(slave, b"\x00garbage" + bytes(bad) + encode(Finished(73, 0)))
-        got = await autopilot.receive(2.0)
+        got = await autopilot.receive(DEADLINE_S)
         assert got is not None
         assert got.message == Finished(73, 0)
         assert [e.kind for e in autopilot.errors] == [ErrorKind.BAD_CHECKSUM]
@@ -220,7 +226,7 @@ async def test_corrupt_frames_are_timed_no_earlier_than_the_flips_that_spoilt_th
         # Line noise in bytes 0 and 52, the R-M's type byte at 26: it is spoilt.
         stream = bytes(25) + encode(DepthReport(72, 15820)) + bytes(20) + encode(Finished(73, 0))
         os.write(slave, stream)
-        got = await autopilot.receive(2.0)
+        got = await autopilot.receive(DEADLINE_S)
         assert got is not None
         assert got.message == Finished(73, 0)
         assert flipper.bits_flipped == 3
@@ -241,7 +247,8 @@ async def test_frameport_filters_see_every_byte(pair: PtyPair) -> None:
     try:
         t = Telemetry(1, 0, 0, 0, 0, 0)
         await autopilot.send(t)
-        assert await daemon_side.receive(0.3) is None
+        await until(lambda: daemon_side.errors, "the spoilt frame found")
+        assert await daemon_side.receive(0) is None  # the frame, once read whole, was spoilt
         assert len(daemon_side.errors) == 1
         assert autopilot.sent[0].frame == t
         assert autopilot.sent[0].wire != encode(t)
@@ -258,7 +265,7 @@ async def test_frameport_sees_the_hangup_and_a_new_port_works_after_replug(pair:
     try:
         autopilot.detach()  # the autopilot stops reading before the cable is pulled
         pair.unplug()
-        assert await daemon_side.receive(2.0) is None
+        assert await daemon_side.receive(DEADLINE_S) is None
         assert daemon_side.hung_up
         with pytest.raises(ConnectionError):
             await autopilot.send(Telemetry(1, 0, 0, 0, 0, 0))
@@ -272,7 +279,7 @@ async def test_frameport_sees_the_hangup_and_a_new_port_works_after_replug(pair:
     autopilot = await FramePort.over_fd(pair.master_fd)
     try:
         await autopilot.send(ProbePositionRequest(9))
-        got = await daemon_side.receive(2.0)
+        got = await daemon_side.receive(DEADLINE_S)
         assert got is not None
         assert got.message == ProbePositionRequest(9)
     finally:
@@ -291,12 +298,12 @@ async def test_send_waits_while_nobody_reads_then_completes(pair: PtyPair) -> No
         count = 2000  # 50 KB: far more than a pty buffers
         sender = asyncio.create_task(_send_many(autopilot, frame, count))
         received = bytearray()
-        deadline = time.monotonic() + 20
+        deadline = time.monotonic() + DEADLINE_S
         while len(received) < count * len(frame) and time.monotonic() < deadline:
             await asyncio.sleep(0.01)
             with contextlib.suppress(BlockingIOError):
                 received += os.read(slave, 65536)
-        await asyncio.wait_for(sender, 5)
+        await asyncio.wait_for(sender, DEADLINE_S)
         assert bytes(received) == frame * count
     finally:
         await autopilot.close()
@@ -314,11 +321,11 @@ async def test_frameport_over_a_serial_port(pair: PtyPair) -> None:
     autopilot = await FramePort.over_fd(pair.master_fd)
     try:
         await autopilot.send(ProbePositionRequest(5))
-        got = await serial_side.receive(2.0)
+        got = await serial_side.receive(DEADLINE_S)
         assert got is not None
         assert got.message == ProbePositionRequest(5)
         await serial_side.send(DepthReport(5, 1234))
-        back = await autopilot.receive(2.0)
+        back = await autopilot.receive(DEADLINE_S)
         assert back is not None
         assert back.message == DepthReport(5, 1234)
     finally:
@@ -332,7 +339,7 @@ async def test_serial_frameport_sees_the_cable_pulled(pair: PtyPair) -> None:
     serial_side = await FramePort.over_serial(str(pair.path), 9600, listen=Sender.AUTOPILOT)
     try:
         pair.unplug()
-        assert await serial_side.receive(2.0) is None
+        assert await serial_side.receive(DEADLINE_S) is None
         assert serial_side.hung_up
         with pytest.raises(ConnectionError):
             await serial_side.send(Ack(1))

@@ -25,8 +25,10 @@ import pytest
 from cc_daemon.cli.status.client import StatusUnavailable, read_status
 from cc_daemon.core.protocol import Finished, ProbePosition, ProbePositionRequest, Telemetry
 from tests.daemonkit import REPO, DaemonProcess, station, toml_text
+from tests.waitkit import DEADLINE_S, until, until_probe_down
 
-pytestmark = pytest.mark.slow
+# A daemon's start and a real-time cast: minutes, not seconds, on a loaded machine.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 MakeDaemon = Callable[..., DaemonProcess]
 
 
@@ -45,16 +47,22 @@ def status_cli(*args: str) -> subprocess.CompletedProcess[str]:
         text=True,
         check=False,
         env={**os.environ, "PYTHONPATH": str(REPO)},
-        timeout=30,
+        timeout=DEADLINE_S,
     )
 
 
-async def wait_for_socket(path: Path, daemon: DaemonProcess, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not await asyncio.to_thread(path.exists):
+async def wait_for_socket(path: Path, daemon: DaemonProcess) -> None:
+    """Return once the daemon says it serves `path`: bound, listening, its mode set
+    (the file alone appears at bind, before either)."""
+
+    def serving() -> bool:
         daemon.check_alive()
-        assert time.monotonic() < deadline, daemon.log_text()
-        await asyncio.sleep(0.05)
+        return any(
+            e.get("event") == "status socket serving" and e.get("path") == str(path)
+            for e in daemon.log_events()
+        )
+
+    await until(serving, f"the daemon serving {path}")
 
 
 async def answer_time(daemon: DaemonProcess) -> float:
@@ -62,23 +70,35 @@ async def answer_time(daemon: DaemonProcess) -> float:
     assert daemon.port is not None
     sent = time.monotonic()
     await daemon.port.send(ProbePositionRequest(5))
-    got = await daemon.expect(ProbePosition, 5.0)
+    got = await daemon.expect(ProbePosition, DEADLINE_S)
     assert got is not None
     return got.time - sent
 
 
 async def test_status_while_a_cast_runs_and_after(make_daemon: MakeDaemon) -> None:
     daemon, path = with_status(make_daemon)
-    port = await daemon.start_and_connect()
+    port = await daemon.start_and_connect(DEADLINE_S)
     await wait_for_socket(path, daemon)
     assert stat.S_IMODE(path.stat().st_mode) == 0o660  # never world-writable
     await port.send(Telemetry(99, -37260579, 404506308, 702385, 30_000, 100))
     await port.send(station())
-    await asyncio.sleep(2.5)  # well into the descent
+    # Well into the descent: 2 m down is 2 s or more after the P-M; the rest of the
+    # cast (1 m down, 1 s at the bottom, 3 m up) is the margin to read the status in.
+    await until_probe_down(daemon, 2000)
+    doc: dict[str, Any] = await asyncio.to_thread(read_status, path)
+    assert doc["cast"]["phase"] not in ("idle", "home") and doc["cast"]["planned_depth_m"] == 3.0
+    assert 0 < doc["cast"]["depth_m"] <= 3.0
+    assert doc["winch"]["backend"] == "sim" and doc["winch"]["at_home"] is False
+    assert doc["fix"]["frame"] == "P-M" and 2.0 <= doc["fix"]["age_s"] < DEADLINE_S
+    assert doc["counters"]["frames_in"] >= 3 and doc["counters"]["casts_completed"] == 0
+
+    await daemon.expect(Finished, DEADLINE_S)
+    # Read again until the document is newer than the server's 0.2 s cache.
+    await until(lambda: read_status(path)["counters"]["casts_completed"] == 1, "the cast counted")
 
     result = await asyncio.to_thread(status_cli, "--json", "--socket", str(path))
     assert result.returncode == 0, result.stderr
-    doc: dict[str, Any] = json.loads(result.stdout)
+    doc = json.loads(result.stdout)
     assert doc["link"] == {
         "up": True,
         "port": str(daemon.pty.path),
@@ -87,21 +107,12 @@ async def test_status_while_a_cast_runs_and_after(make_daemon: MakeDaemon) -> No
         "open_attempts": 0,
     }
     assert doc["fix"]["frame"] == "P-M" and doc["fix"]["lat_e7"] == 404506308
-    assert 1.5 < doc["fix"]["age_s"] < 10
-    assert doc["cast"]["phase"] not in ("idle", "home") and doc["cast"]["planned_depth_m"] == 3.0
-    assert 0 < doc["cast"]["depth_m"] <= 3.0
-    assert doc["winch"]["backend"] == "sim" and doc["winch"]["at_home"] is False
+    assert doc["cast"]["phase"] == "idle" and doc["counters"]["casts_completed"] == 1
     assert doc["journal"]["path"] == str(daemon.db) and doc["journal"]["writable"] is True
     assert doc["journal"]["disk_free_bytes"] > 0
-    assert doc["counters"]["frames_in"] >= 3 and doc["counters"]["casts_completed"] == 0
+    assert doc["counters"]["frames_out"] >= 5
     assert doc["clock"]["synchronised"] in (True, False, None)
     assert doc["daemon"]["pid"] == daemon.proc.pid if daemon.proc else False
-
-    await daemon.expect(Finished, 20.0)
-    await asyncio.sleep(0.3)  # past the server's 0.2 s cache
-    doc = await asyncio.to_thread(read_status, path)
-    assert doc["cast"]["phase"] == "idle" and doc["counters"]["casts_completed"] == 1
-    assert doc["counters"]["frames_out"] >= 5
 
     person = await asyncio.to_thread(status_cli, "--socket", str(path))
     assert person.returncode == 0
@@ -114,7 +125,7 @@ async def test_status_while_a_cast_runs_and_after(make_daemon: MakeDaemon) -> No
     assert watched.returncode == 0 and watched.stdout.count("counters ") == 2
 
     daemon.send_signal()
-    assert await daemon.wait_exit() == 0
+    assert await daemon.wait_exit(DEADLINE_S) == 0
     assert not path.exists()  # removed on the way out
 
 
@@ -124,7 +135,7 @@ def raw_connect(path: Path) -> socket.socket:
     return s
 
 
-def read_all(s: socket.socket, timeout: float = 5.0) -> bytes:
+def read_all(s: socket.socket, timeout: float = DEADLINE_S) -> bytes:
     s.settimeout(timeout)
     data = b""
     while chunk := s.recv(65536):
@@ -134,7 +145,7 @@ def read_all(s: socket.socket, timeout: float = 5.0) -> bytes:
 
 async def test_hostile_clients_cannot_stall_the_daemon(make_daemon: MakeDaemon) -> None:
     daemon, path = with_status(make_daemon)
-    await daemon.start_and_connect()
+    await daemon.start_and_connect(DEADLINE_S)
     await wait_for_socket(path, daemon)
     calm = [await answer_time(daemon) for _ in range(3)]
 
@@ -186,7 +197,11 @@ async def test_hostile_clients_cannot_stall_the_daemon(make_daemon: MakeDaemon) 
         f"{max(during) * 1000:.1f} ms; {len(flood)} connections in {opened_s:.2f} s: "
         f"{answered} answered, {closed} closed unanswered"
     )
-    assert max(during) < 1.0  # the autopilot's requests are still answered promptly
+    # The autopilot's requests are still answered: a loop held by the clients that never
+    # read would answer only after their time-outs (`client_timeout_s`, 2 s each). The
+    # margin is for a loaded machine; the tight figure (R-P during the flood, ~50 ms at
+    # worst idle) is benchmarks/status_flood.py's.
+    assert max(during) < 10.0
 
 
 def test_status_without_a_daemon_says_why(tmp_path: Path) -> None:

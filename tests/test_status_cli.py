@@ -21,6 +21,7 @@ from cc_daemon.daemon.service import Daemon
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
 from tests.daemonkit import FAST_CAST, merge, station
+from tests.waitkit import DEADLINE_S, until
 
 
 @pytest.fixture
@@ -38,14 +39,12 @@ async def running(tmp_path: Path) -> AsyncIterator[tuple[Daemon, FramePort, Path
     daemon = Daemon(Settings.model_validate(config))
     port = await FramePort.over_fd(pty.master_fd)
     task = asyncio.create_task(daemon.run())
-    await asyncio.wait_for(daemon.ready.wait(), 10)
-    for _ in range(200):
-        if await asyncio.to_thread(sock.exists):
-            break
-        await asyncio.sleep(0.02)
+    await asyncio.wait_for(daemon.ready.wait(), DEADLINE_S)
+    # Looked at on the loop that serves it: once there, it is listening too.
+    await until(sock.is_socket, "the status socket")
     yield daemon, port, sock
     daemon.request_shutdown()
-    assert await asyncio.wait_for(task, 10) == 0
+    assert await asyncio.wait_for(task, DEADLINE_S) == 0
     await port.close()
     pty.close()
 
@@ -55,7 +54,7 @@ async def test_json_and_words(
 ) -> None:
     daemon, port, sock = running
     await port.send(Telemetry(99, -37260579, 404506308, 702385, 12_400, 96))
-    await asyncio.sleep(0.3)
+    await until(lambda: daemon.last_fix is not None, "the fix taken")
     assert await asyncio.to_thread(main, ["status", "--json", "--socket", str(sock)]) == 0
     # The in-process daemon's own log shares stdout: the document is the JSON line.
     out = capsys.readouterr().out.splitlines()
@@ -136,9 +135,9 @@ async def test_stopping_is_shown_while_the_probe_comes_home(
 ) -> None:
     daemon, port, sock = running
     await port.send(station())
-    await asyncio.sleep(1.5)  # the probe is on its way down
+    # The probe 2 m down: coming home takes 2 s, the margin to read the status in.
+    await until(lambda: daemon.snapshot().probe_depth_m >= 2.0, "the probe 2 m down")
     daemon.request_shutdown()
-    await asyncio.sleep(0.3)
     doc = await asyncio.to_thread(read_status, sock)
     assert doc["daemon"]["state"] == "stopping"
     assert doc["cast"]["phase"] != "idle" and doc["cast"]["depth_m"] > 0

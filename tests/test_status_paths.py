@@ -29,6 +29,7 @@ from cc_daemon.daemon.service import Daemon
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
 from tests.daemonkit import FAST_CAST, merge, toml_text
+from tests.waitkit import DEADLINE_S, until
 
 NONE = StatusSettings()
 
@@ -74,24 +75,22 @@ async def by_hand(
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
         started.append((daemon, task, port, pty))
-        await asyncio.wait_for(daemon.ready.wait(), 10)
+        await asyncio.wait_for(daemon.ready.wait(), DEADLINE_S)
         return config_path
 
     yield start
     for daemon, task, port, pty in started:
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 10) == 0
+        assert await asyncio.wait_for(task, DEADLINE_S) == 0
         await port.close()
         pty.close()
 
 
-async def _status(config: Path) -> tuple[int, dict[str, Any] | None]:
-    for _ in range(200):  # the socket is bound just after the daemon is ready
-        code = await asyncio.to_thread(main, ["status", "--json", "--config", str(config)])
-        if code == 0:
-            return code, None
-        await asyncio.sleep(0.02)
-    return code, None
+async def _status(config: Path, socket: Path) -> int:
+    """`cc-daemon status --config`, once the daemon serves `socket` (bound just after it
+    is ready; looked at on the loop that serves it: once there, it is listening too)."""
+    await until(socket.is_socket, f"the status socket at {socket}")
+    return await asyncio.to_thread(main, ["status", "--json", "--config", str(config)])
 
 
 async def test_status_finds_a_daemon_started_by_hand_beside_its_journal(
@@ -99,11 +98,10 @@ async def test_status_finds_a_daemon_started_by_hand_beside_its_journal(
 ) -> None:
     journal = tmp_path / "survey.db"
     config = await by_hand({"store": {"path": str(journal)}})
-    code, _ = await _status(config)
+    code = await _status(config, tmp_path / "survey.db.status.sock")
     assert code == 0, capsys.readouterr().err
     document = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert document["link"]["port"] == str(tmp_path / "tty")
-    assert (tmp_path / "survey.db.status.sock").is_socket()
 
 
 async def test_status_finds_a_daemon_in_the_users_runtime_directory(
@@ -117,10 +115,10 @@ async def test_status_finds_a_daemon_in_the_users_runtime_directory(
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
     monkeypatch.chdir(tmp_path)  # no store.path: the journal is ./cc-daemon.db
     config = await by_hand({})
-    code, _ = await _status(config)
-    assert code == 0, capsys.readouterr().err
     sock = runtime / "cc-daemon" / "status.sock"
-    assert sock.is_socket() and (sock.parent.stat().st_mode & 0o777) == 0o700
+    code = await _status(config, sock)
+    assert code == 0, capsys.readouterr().err
+    assert (sock.parent.stat().st_mode & 0o777) == 0o700
 
 
 async def test_no_daemon_names_every_place_it_looked(

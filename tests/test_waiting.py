@@ -17,6 +17,7 @@ from cc_daemon.drivers.link import SerialLink
 from cc_daemon.ground.logsetup import configure_logging
 from cc_daemon.ground.waiting import WaitReport
 from cc_daemon.sim.pty import PtyPair
+from tests.waitkit import DEADLINE_S, until
 
 
 def test_reports_come_at_a_slowing_interval_with_a_count() -> None:
@@ -61,10 +62,9 @@ async def test_a_link_waiting_for_a_missing_device_keeps_saying_so(tmp_path: Pat
     )
     task = asyncio.create_task(link.run())
     try:
-        await asyncio.sleep(1.5)
-        assert link.waiting.attempts >= 20
-        # 0.2 s, then 0.4 s apart: about four reports in 1.5 s, each with a growing count.
-        assert 2 <= len(said) <= 5, said
+        # Retried every 0.02-0.05 s and said again 0.2 s, then 0.4 s apart, each report
+        # with a growing count. (When each is due, on the times given: the tests above.)
+        await until(lambda: len(said) >= 3 and link.waiting.attempts >= 20, "retried, and said")
         counts = [
             int(re.fullmatch(rf"still waiting for {path}: (\d+) attempts since [\d:]{{8}}", s)[1])
             for s in said
@@ -76,11 +76,8 @@ async def test_a_link_waiting_for_a_missing_device_keeps_saying_so(tmp_path: Pat
         assert later == said
         pty = PtyPair(path)  # the adapter is plugged in
         try:
-            for _ in range(100):
-                if link.up:
-                    break
-                await asyncio.sleep(0.02)
-            assert link.up and link.waiting.attempts == 0
+            await until(lambda: link.up, "the link up")
+            assert link.waiting.attempts == 0
         finally:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -116,20 +113,23 @@ async def test_the_daemon_counts_the_wait_and_says_it_in_the_systemd_status(
         daemon = Daemon(settings, notifier=SystemdNotifier(str(sock_path)))
         daemon.link.waiting = WaitReport(first_s=0.2, max_s=0.2)
         task = asyncio.create_task(daemon.run())
+        statuses: list[str] = []
+
+        def said_twice() -> bool:  # what systemd was told, as it comes
+            with contextlib.suppress(BlockingIOError):
+                while True:
+                    statuses.append(server.recv(4096).decode())
+            return len([s for s in statuses if "still waiting for" in s]) >= 2
+
         try:
-            await asyncio.sleep(1.2)
-            assert daemon.snapshot().port_open_attempts >= 10
+            await until(said_twice, "two still-waiting statuses for systemd")
+            await until(lambda: daemon.snapshot().port_open_attempts >= 10, "ten attempts")
             # ... and the status document (`cc-daemon status`) says so.
             doc = status_document(daemon.status_inputs())
             assert doc["link"]["up"] is False and doc["link"]["open_attempts"] >= 10
             assert f"{doc['link']['open_attempts']} attempts to open it" in render_text(doc)
-            statuses = []
-            with contextlib.suppress(BlockingIOError):
-                while True:
-                    statuses.append(server.recv(4096).decode())
             waiting = [s for s in statuses if "still waiting for" in s]
-            assert len(waiting) >= 2, statuses
             assert waiting[-1].startswith(f"STATUS=still waiting for {tmp_path / 'ttyUSB7'}: ")
         finally:
             daemon.request_shutdown()
-            await asyncio.wait_for(task, 10)
+            await asyncio.wait_for(task, DEADLINE_S)

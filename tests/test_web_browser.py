@@ -10,7 +10,6 @@ import os
 import re
 import subprocess
 import sys
-import time
 import urllib.request
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -20,6 +19,7 @@ import pytest
 
 from tests import browserkit, webkit
 from tests.daemonkit import REPO
+from tests.waitkit import DEADLINE_S, until_sync
 
 # A simulated survey, a stalled one and a browser: slow under a loaded full suite.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
@@ -30,15 +30,9 @@ def _env(**extra: str) -> dict[str, str]:
     return {**env, "PYTHONPATH": str(REPO), **extra}
 
 
-def _until(what: str, check: Callable[[], Any], timeout: float = 20.0) -> Any:
-    """Poll `check` every 0.1 s until it is true-ish; its value."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        found = check()
-        if found:
-            return found
-        time.sleep(0.1)
-    raise AssertionError(f"not within {timeout:g} s: {what}")
+def _until(what: str, check: Callable[[], Any]) -> Any:
+    """Poll `check` (a round trip to the browser) every 0.1 s until it is true-ish."""
+    return until_sync(check, what, DEADLINE_S, every=0.1)
 
 
 SIMULATE = [sys.executable, "-m", "cc_daemon", "--simulate", "--stations", "3", "--plain"]
@@ -51,7 +45,7 @@ PROFILE_LINES = "return document.querySelectorAll('#profile polyline').length"
 
 
 def _get_json(url: str) -> dict[str, Any]:
-    with urllib.request.urlopen(url, timeout=5) as answer:
+    with urllib.request.urlopen(url, timeout=DEADLINE_S) as answer:
         doc: dict[str, Any] = json.load(answer)
     return doc
 
@@ -82,7 +76,7 @@ def web(tmp_path: Path) -> Iterator[tuple[str, Path, Path]]:
         yield url, sock, db
     finally:
         proc.terminate()
-        proc.wait(10)
+        proc.wait(DEADLINE_S)
         assert proc.stderr is not None
         proc.stderr.close()
 
@@ -108,7 +102,7 @@ def test_the_page_follows_a_simulated_survey_at_a_phones_width(
 
     def stop(sim: subprocess.Popen[bytes]) -> None:
         sim.terminate()  # the daemon brings the probe home and exits
-        sim.wait(30)
+        sim.wait(DEADLINE_S)
 
     sim = simulate()
     try:
@@ -119,18 +113,18 @@ def test_the_page_follows_a_simulated_survey_at_a_phones_width(
             _until("SIMULATED shown", lambda: "SIMULATED" in js("return $('#mode').textContent"))
             # The live chart grows while a cast runs, without a reload.
             first = _until("a cast on the live chart", lambda: js(LIVE_POINTS))
-            _until("the chart advancing", lambda: js(LIVE_POINTS) >= first + 2, timeout=10)
+            _until("the chart advancing", lambda: js(LIVE_POINTS) >= first + 2)
             assert js("return $('#live-caption').textContent").startswith("Cast ")
-            _until("a cast completed", lambda: _status(url)["counters"]["casts_completed"], 40)
+            _until("a cast completed", lambda: _status(url)["counters"]["casts_completed"])
             # The sonde's last reading, from the journal (every 5 s).
-            _until("the sonde's card", lambda: "Sonde (last reading)" in js(SUMMARY), 10)
+            _until("the sonde's card", lambda: "Sonde (last reading)" in js(SUMMARY))
             stop(sim)
             # The daemon gone: said at the top, not hidden.
             _until("the unreachable banner", lambda: "does not answer" in js(BANNER))
             # A fault injected in the simulation (the winch stalls): the banner, while
             # it lasts (about 2 s per stalled cast), on a second survey in the journal.
             stall = simulate("--winch-stall")
-            _until("the stall's banner", lambda: "winch.fault: stall at" in js(BANNER), 40)
+            _until("the stall's banner", lambda: "winch.fault: stall at" in js(BANNER))
             stop(stall)
             # Any fault key in the status document, and sections no version of the
             # page knows, are shown too.
@@ -169,7 +163,7 @@ def test_the_page_follows_a_simulated_survey_at_a_phones_width(
                 links = js("return [...document.querySelectorAll('#downloads a')].map(a => a.href)")
         assert [link.rsplit(".", 1)[1] for link in links] == ["csv", "geojson", "nc"]
         for link in links[:2]:
-            with urllib.request.urlopen(link, timeout=10) as answer:
+            with urllib.request.urlopen(link, timeout=DEADLINE_S) as answer:
                 assert answer.status == 200 and len(answer.read()) > 100
         assert (tmp_path / "phone.png").stat().st_size > 10_000
     finally:

@@ -23,6 +23,7 @@ from typing import Any
 from cc_daemon.config.sonde import DEFAULT_PARAMETERS
 from cc_daemon.store import Journal, JournalReader
 from cc_daemon.store.synthetic import FakeClock, write_survey
+from tests.waitkit import until_sync
 
 # What the daemon's status socket serves in the middle of a cast (status_report.py),
 # plus a section no version of the page knows: it must still be shown.
@@ -67,8 +68,7 @@ def make_journal(db: Path) -> Path:
 
 
 def _sonde_readings(journal: Journal, db: Path) -> None:
-    while journal.health().pending_rows:  # the writer thread has the casts on disk
-        time.sleep(0.01)
+    until_sync(lambda: not journal.health().pending_rows, "the casts on disk (writer thread)")
     with JournalReader(db) as reader:
         cast = [c for c in reader.casts() if c.outcome == "completed"][-1]
     for i in range(8):

@@ -16,7 +16,9 @@ default action could apply:
 - every other command (`casts`, `export`, `decode` ...) calls `release`: the
   handlers that were in place before come back and the held signals are raised
   again, so a data command behaves exactly as if nothing had been held (Ctrl-C:
-  exit 130; SIGHUP: the default action).
+  exit 130; SIGHUP: the default action);
+- the daemon, done, ignores them (`ignore_from_now`) before the interpreter's exit
+  would give them their default action back.
 
 What each signal does in the daemon is `cc_daemon.daemon.signals`'s; the table
 is in docs/signals.md. This module imports nothing of the project and nothing
@@ -140,6 +142,17 @@ class SignalHold:
             signum = next(iter(self._pending))
             del self._pending[signum]
             target(signum)
+
+    def ignore_from_now(self) -> None:
+        """Ignore every held signal from now on, unless released: the daemon's last step.
+        The interpreter's exit gives every Python handler its default action back, and
+        a SIGHUP (an SSH session closing) or a repeated SIGTERM in those last
+        milliseconds would end a clean stop by the signal instead of with its exit status."""
+        if self._released:
+            return
+        self._target = None
+        for signum in self._previous:
+            signal.signal(signum, signal.SIG_IGN)
 
     def release(self) -> None:
         """Give back the handlers that were in place and raise what was held (a data
