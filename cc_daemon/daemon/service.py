@@ -389,6 +389,8 @@ class Daemon(CastRunner):
             jog=str(self._line.jog.stick) if self._line.jog.stick else None,
             lost_start=self._line.lost_start_text(),
             port_open_attempts=self.link.waiting.attempts,
+            timestamp_order=self._line.order.order,
+            timestamp_order_settled=self._line.order.decided,
         )
 
     @property

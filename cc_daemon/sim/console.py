@@ -31,6 +31,7 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
+from cc_daemon.core.cast.timestamps import swap_bytes
 from cc_daemon.core.protocol import CorruptFrame, Message, as_dict
 from cc_daemon.sim.autopilot import Violation
 from cc_daemon.sim.mission import Mission
@@ -44,11 +45,17 @@ _RECENT_EVENTS = 6
 _BAR_WIDTH = 44
 
 
-def describe_frame(message: Message) -> str:
-    """One short line for a frame: `P-T t=12 40.4506308 N -3.7260579 E sonar 4.620 m 97 %`."""
+def describe_frame(message: Message, order: str = "big") -> str:
+    """One short line for a frame: `P-T t=12 40.4506308 N -3.7260579 E sonar 4.620 m 97 %`.
+
+    `order`: how the autopilot's two timestamp bytes are read, as the daemon settled
+    it (`core.cast.timestamps`); the codec reads them big-endian, as the manual says,
+    and the CC's own frames are big-endian whatever the autopilot does."""
     fields = as_dict(message)
     name = fields.pop("frame")
     stamp = fields.pop("timestamp_s")
+    if order == "little" and name.startswith("P-"):
+        stamp = swap_bytes(stamp)
     if "lat_e7" in fields:
         sonar_m = fields["sonar_distance_mm"] / 1000
         return (
@@ -379,8 +386,8 @@ class SimConsole:
         if not self.live:
             self._line(line)
 
-    def frame_out(self, elapsed_s: float, message: Message) -> None:
-        self.sent.append(f"{elapsed_s:7.1f} s  → {describe_frame(message)}")
+    def frame_out(self, elapsed_s: float, message: Message, order: str = "big") -> None:
+        self.sent.append(f"{elapsed_s:7.1f} s  → {describe_frame(message, order)}")
 
     def frame_in(self, elapsed_s: float, message: Message) -> None:
         text = describe_frame(message)

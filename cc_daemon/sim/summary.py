@@ -23,6 +23,7 @@ from cc_daemon.sim.mission import (
     Mission,
     Point,
 )
+from cc_daemon.store.stations import MATCH_RADIUS_M
 
 if TYPE_CHECKING:
     from cc_daemon.sim.session import Run
@@ -44,8 +45,6 @@ REARM_HINT = (
     "at this station less than cast.rearm_s ago (120 s by default) does: it answers M "
     "with R-F at once. Wait that long between runs, or use another --seed."
 )
-
-_MATCH_RADIUS_M = 15.0  # a journal cast belongs to the station within this distance
 
 
 def _local(lat_deg: float, lon_deg: float) -> Point:
@@ -80,7 +79,9 @@ def journal_casts(db: Path, mission: Mission, survey: int | None) -> list[Journa
         for record in reader.casts():
             here = _local(record.lat_deg, record.lon_deg)
             nearest = min(mission.stations, key=lambda s: s.point.distance_to(here))
-            if nearest.point.distance_to(here) <= _MATCH_RADIUS_M:
+            if (
+                nearest.point.distance_to(here) <= MATCH_RADIUS_M
+            ):  # the journal's own rule (`store.stations`)
                 found.append(
                     JournalCast(
                         nearest.number,

@@ -249,7 +249,7 @@ def build_app(sources: Sources, limits: Limits | None = None) -> web.Application
                 response = web.StreamResponse(
                     headers={
                         "Content-Type": downloads.FORMATS[fmt],
-                        "Content-Disposition": f'attachment; filename="survey-{n}.{fmt}"',
+                        "Content-Disposition": f'attachment; filename="survey-{n}{_dot(fmt)}"',
                     }
                 )
                 with contextlib.suppress(ConnectionError):
@@ -278,10 +278,17 @@ def build_app(sources: Sources, limits: Limits | None = None) -> web.Application
         ("/api/casts/{n}/profile", api_profile),
         ("/api/events", api_events),
         ("/api/latest", api_latest),
+        # The sonde's first: `3-sonde.csv` would otherwise be survey "3-sonde", as CSV.
+        (r"/download/survey/{n}-{fmt:sonde\.csv|sonde\.nc}", download),
         (r"/download/survey/{n}.{fmt:csv|geojson|nc}", download),
     ]:
         app.router.add_get(path, handler, allow_head=False)
     return app
+
+
+def _dot(fmt: str) -> str:
+    """How a download's name ends: `.csv`, or `-sonde.csv` for the sonde's readings."""
+    return f"-{fmt}" if fmt.startswith("sonde.") else f".{fmt}"
 
 
 def split_listen(listen: str) -> tuple[str, int]:
