@@ -55,6 +55,9 @@ ASSETS = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/static/page.css": ("page.css", "text/css; charset=utf-8"),
     "/static/page.js": ("page.js", "text/javascript; charset=utf-8"),
+    "/static/words.js": ("words.js", "text/javascript; charset=utf-8"),
+    "/static/draw.js": ("draw.js", "text/javascript; charset=utf-8"),
+    "/static/today.js": ("today.js", "text/javascript; charset=utf-8"),
 }
 
 
