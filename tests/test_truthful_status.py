@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -165,3 +166,25 @@ def test_web_asks_the_socket_of_the_daemon_writing_its_db(
     paths = socket_candidates(None, config, None)
     assert hand_socket_path(tmp_path / "simulate.db") in paths
     assert str(paths[-1]) == "/run/cc-daemon/status.sock"
+
+
+def test_make_simulate_says_the_simulators_own_exit_status(tmp_path: Path) -> None:
+    make = shutil.which("make")
+    if make is None:
+        pytest.skip("make is not installed")
+    # A stand-in for the venv's programs: the simulator ends SURVEY INCOMPLETE (3).
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for name, body in (("python", "exit 0"), ("cc-daemon", 'echo "ran $*"; exit 3')):
+        (bin_dir / name).write_text(f"#!/bin/sh\n{body}\n")
+        (bin_dir / name).chmod(0o755)
+    stamp = tmp_path / "stamp"
+    stamp.touch()
+    made = subprocess.run(
+        [make, "-s", "-C", str(REPO), "simulate", f"BIN={bin_dir}", f"EXTRAS_STAMP={stamp}",
+         "ARGS=--winch-stall"],
+        capture_output=True, text=True, timeout=DEADLINE_S, check=False,
+    )  # fmt: skip
+    assert "ran --simulate --winch-stall" in made.stdout
+    assert made.returncode == 2  # make's own, for any failure
+    assert "make: the simulator exited 3 (docs/simulator.md, Exit status)" in made.stderr
