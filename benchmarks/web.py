@@ -36,7 +36,17 @@ from cc_daemon.store.synthetic import FakeClock, write_survey
 CLIENTS = 10
 PHASE_S = 10.0
 DOWNLOADERS = 8
-FIRST_LOAD = ["", "static/page.css", "static/page.js", "api/status", "api/latest", "api/surveys"]
+FIRST_LOAD = [
+    "",
+    "static/page.css",
+    "static/page.js",
+    "static/words.js",
+    "static/draw.js",
+    "static/today.js",
+    "api/status",
+    "api/latest",
+    "api/surveys",
+]
 
 
 def get(url: str, timeout: float = 5.0) -> bytes:

@@ -14,6 +14,7 @@ from typing import Any
 
 import pytest
 
+from cc_daemon.cli.status.view import status_lines
 from cc_daemon.core.cast.timestamps import swap_bytes
 from cc_daemon.core.protocol import DepthReport, Telemetry
 from cc_daemon.core.status import DaemonStatus, Fix
@@ -66,7 +67,10 @@ def test_an_estimated_depth_reaches_the_status_with_its_range() -> None:
     reported = doc["cast"]["fault_reported"]
     assert reported["depth_m"] == 0.244 and reported["r_l_sent"] == 3
     assert (reported["depth_low_m"], reported["depth_high_m"]) == (0.0, 2.686)
+    words = dict(status_lines(doc))  # what `cc-daemon status` prints
+    assert words["STRANDED"].startswith("probe between 0.00 and 2.69 m (an estimate: best 0.24 m)")
     measured = status_document(_inputs(winch=WinchStatus(0.5, False, False, "jam")))
+    assert dict(status_lines(measured))["STRANDED"].startswith("probe at 0.24 m (")
     assert measured["winch"]["depth_low_m"] is None
     assert measured["cast"]["fault_reported"]["depth_high_m"] is None
 

@@ -228,8 +228,14 @@ def build_summary(
     status = run.status
     # Where the probe ended: the daemon's winch here, or what a remote daemon last said.
     probe_depth_m = status.probe_depth_m if status is not None else None
+    winch = status.winch if status is not None else None
+    probe_range_m = (
+        (winch.depth_low_m, winch.depth_high_m)
+        if winch is not None and winch.depth_low_m is not None and winch.depth_high_m is not None
+        else None
+    )
     if run.daemon is None:
-        probe_depth_m = ap.probe_depth_m
+        probe_depth_m, probe_range_m = ap.probe_depth_m, None
     problems = [v for v in violations if not v.excused]
     if run.daemon is None and any(v.kind is ViolationKind.UNEXPECTED_SKIP for v in problems):
         extra_notes.append(REARM_HINT)
@@ -289,6 +295,7 @@ def build_summary(
         notes=[*(notes or []), *extra_notes],
         daemon_exit=daemon_exit,
         probe_depth_m=probe_depth_m,
+        probe_range_m=probe_range_m,
         remote=run.daemon is None,
         protocol_kept=protocol_kept,
         survey_complete=survey_ok,
