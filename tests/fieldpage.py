@@ -251,9 +251,9 @@ def run_the_day(workdir: Path, visit: Callable[[Day, str, Any], None]) -> None:
                 with day.replay(state):
                     browser.get(url)
                     visit(day, state, browser)
+            # The page stays open: it follows the new survey and its cast on its own.
             second = day.simulate("--winch-fail-home", "--stations", "2")
             day.keep("stranded", stranded)
-            browser.get(url)
             visit(day, "stranded-live", browser)
             second.wait(DEADLINE_S * 3)
             visit(day, "gone-live", browser)  # the real daemon stopped: exit 130

@@ -4,11 +4,13 @@ simulation found by `status` and `web` from its journal, as its header says."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -192,3 +194,25 @@ def test_make_simulate_says_the_simulators_own_exit_status(tmp_path: Path) -> No
     assert "ran --simulate --winch-stall" in made.stdout
     assert made.returncode == 2  # make's own, for any failure
     assert "make: the simulator exited 3 (docs/simulator.md, Exit status)" in made.stderr
+
+
+async def test_the_daemon_says_its_settled_order_and_that_mock_pins_move_no_probe(
+    tmp_path: Path,
+) -> None:
+    from tests.test_gpio_daemon import _boat
+
+    async with gpio_rig() as rig, _boat(tmp_path, rig) as boat:
+        # The deployed firmware's T frames about 1.1 s apart, its whole-second clock
+        # written little-endian, until the daemon has learnt the order (on a busy
+        # machine a pair too far apart says nothing: the next ones will).
+        started, sent = time.monotonic(), 0
+        deadline = started + DEADLINE_S
+        while not boat.daemon.snapshot().timestamp_order_settled:
+            assert time.monotonic() < deadline, "the byte order never settled"
+            sent = 40 + int(time.monotonic() - started)
+            await boat.port.send(Telemetry(swap_bytes(sent), -37260579, 404506308, 0, 4000, 90))
+            await asyncio.sleep(1.1)  # the firmware's frame period
+        doc = status_document(boat.daemon.status_inputs())
+    assert doc["fix"]["timestamp_order"] == "little" and doc["fix"]["timestamp_order_settled"]
+    assert doc["fix"]["timestamp_s"] == sent
+    assert doc["daemon"]["simulated"] is True and doc["winch"]["backend"] == "gpio-mock"

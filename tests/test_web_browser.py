@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -22,14 +20,13 @@ from tests.fieldpage import (
     WIDTHS,
     Day,
     at_width,
-    env,
     fetch,
     look,
     ready,
     run_the_day,
     settle,
+    web,
 )
-from tests.waitkit import DEADLINE_S
 
 # Two simulated surveys and a browser: minutes under a loaded full suite.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
@@ -53,6 +50,8 @@ def _checks(browser: Any, state: str) -> None:
         assert seen["broken"] == [], (state, width)
         assert seen["spills"] == [], (state, width)
     text = {where: js(TEXT_JS, where) for where in ("#state", "#summary", "#casts", "#banner")}
+    mode = js(TEXT_JS, "#mode")
+    assert mode == ("DAEMON NOT ANSWERING" if state == "gone" else "SIMULATED: no probe moves")
     if state != "gone":
         for where, units in UNITS.items():
             for unit in units:
@@ -140,6 +139,9 @@ def test_the_field_page_through_a_day_at_a_phones_and_a_laptops_width(tmp_path: 
             settle(browser, "the stranded sentence", lambda: "The probe is stranded" in js(
                 TEXT_JS, "#banner"))  # fmt: skip
             _stranded_said(js(TEXT_JS, "#banner"))
+            # Opened on the first survey, the page followed the second and its station.
+            settle(browser, "the new survey's map", lambda: "survey 2" in js(TEXT_JS, "#map-title"))
+            settle(browser, "the station named", lambda: " at S1: " in js(TEXT_JS, "#state"))
             return
         if state == "gone-live":  # the real daemon stopped with the probe down
             settle(browser, "the daemon gone", lambda: "does not answer" in js(TEXT_JS, "#banner"))
@@ -153,15 +155,8 @@ def test_the_field_page_through_a_day_at_a_phones_and_a_laptops_width(tmp_path: 
 
 
 def test_any_fault_key_raises_the_banner_and_unknown_sections_are_shown(tmp_path: Path) -> None:
-    db, sock = webkit.make_journal(tmp_path / "j.db"), tmp_path / "status.sock"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "cc_daemon", "web", "--listen", "127.0.0.1:0", "--socket", str(sock),
-         "--db", str(db)],
-        stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env(), cwd=tmp_path,
-    )  # fmt: skip
-    try:
-        assert proc.stderr is not None
-        url = next(w for line in proc.stderr for w in line.split() if w.startswith("http://"))
+    webkit.make_journal(tmp_path / "sim.db")
+    with web(tmp_path) as (url, sock, _):
         doc = webkit.status(
             winch={"fault": "stalled at 2.5 m: probe stranded"},
             counters={"faults_total": 3},  # a count of faults past: no banner
@@ -196,8 +191,3 @@ def test_any_fault_key_raises_the_banner_and_unknown_sections_are_shown(tmp_path
                 "s.textContent = 'spilt '.repeat(60); document.querySelector('.card dd').append(s)"
             )
             assert look(browser)["spills"]
-    finally:
-        proc.terminate()
-        proc.wait(DEADLINE_S)
-        assert proc.stderr is not None
-        proc.stderr.close()

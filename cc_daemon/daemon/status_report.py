@@ -42,6 +42,7 @@ class StatusInputs:
     monotonic: float  # the daemon's clock, for ages
     wall: float
     uptime_s: float
+    simulated: bool = False  # no real motor moves (a simulated winch, or mock pins)
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +77,7 @@ def _daemon(src: Source) -> dict[str, Any]:
         "host": socket.gethostname(),
         "uptime_s": round(src.uptime_s, 1),
         "wall_time": round(src.wall, 3),
+        "simulated": src.inputs.simulated,
     }
 
 

@@ -74,7 +74,8 @@ function banner(doc, shown, stale) {
     blocks.push({ title: "The daemon does not answer.", lines: [
       sentence(doc.reason || "no reason given"),
       heard ? `Below is the last state it reported, ${ago(stale)} old (at ${clock(heard.at)} UTC): `
-        + "it may have changed since." : "It has not answered since this page opened.",
+        + "it may have changed since." : "It has not answered since this page opened; "
+        + "the journal's surveys are below (Today).",
     ] });
   }
   if (shown) {

@@ -4,7 +4,7 @@ import { depthTime, profile, surveyMap } from "./draw.js";
 import { clock, eventSentence, metres, plural, unitText, utc, words } from "./words.js";
 
 const $ = (sel) => document.querySelector(sel);
-export const today = { survey: null, cast: null, map: null, profile: null, casts: [] };
+export const today = { survey: null, latest: null, cast: null, map: null, profile: null, casts: [] };
 
 export function el(tag, attrs, ...children) {
   const node = document.createElement(tag);
@@ -50,14 +50,22 @@ export async function loadSurveys(first) {
     return item;
   }));
   if (!list.length) $("#surveys").replaceChildren(el("li", {}, "No survey in the journal yet."));
-  if ((first || today.survey === null) && list.length) await chooseSurvey(list[list.length - 1].id);
-  else if (today.survey !== null && list.length && today.survey === list[list.length - 1].id) {
-    await refreshSurvey(today.survey);  // the survey under way: its track and casts grow
-  }
+  if (!list.length) return;
+  const newest = list[list.length - 1].id;
+  const following = first || today.survey === null || today.survey === today.latest;
+  today.latest = newest;
+  // Whoever looks at the latest survey follows the one under way, a new one included.
+  if (following && today.survey !== newest) await chooseSurvey(newest);
+  else if (today.survey === newest) await refreshSurvey(newest);  // its track and casts grow
 }
 
 export async function chooseSurvey(id) {
   today.survey = id;
+  if (today.profile && today.profile.cast.session_id !== id) {  // another survey's cast
+    today.cast = today.profile = null;
+    $("#profile-title").textContent = "Profiles";
+    $("#profiles").replaceChildren(el("p", {}, "No cast of this survey has readings yet."));
+  }
   for (const b of document.querySelectorAll("#surveys button")) {
     b.classList.toggle("chosen", Number(b.dataset.survey) === id);
   }
