@@ -59,6 +59,14 @@ def _checks(browser: Any, state: str) -> None:
         if "status\nok" in text["#summary"]:  # the sonde's last reading, every value's unit
             for unit in ("°C", "mg/L", "RFU", " %"):
                 assert unit in text["#summary"].split("Sonde (last reading)")[1], unit
+    # One count: the chosen survey's measured stations are its casts measured.
+    counted = js("return document.querySelector('#surveys button.chosen .measured').textContent")
+    measured = js(
+        "return [...document.querySelectorAll('#casts button')]"
+        ".filter((b) => b.children[2].textContent === 'measured')"
+        ".map((b) => b.children[0].textContent.split(' ')[0])"
+    )
+    assert counted == f"{len(set(measured))} measured", (counted, measured)
     # The map names the stations as the simulator does; profiles have axes with units.
     labels = js(
         "return [...document.querySelectorAll('#map .station-label')].map(t => t.textContent)"

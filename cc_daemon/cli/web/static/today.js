@@ -32,6 +32,21 @@ export async function getJSON(url) {
   return body;
 }
 
+function counted(stations, castable, measured) {
+  return [chunk(`${plural(stations, "station")} (${castable} castable)`, "stations"),
+    chunk(`${measured} measured`, "measured")];
+}
+// The chosen survey's counts from its map, read just now: the list is read for every
+// page at once and may be a few seconds older.
+function recount(id, stations) {
+  const row = document.querySelector(`#surveys button[data-survey="${id}"]`);
+  if (!row) return;
+  const [all, measured] = counted(stations.length, stations.filter((s) => s.castable).length,
+    stations.filter((s) => s.measured).length);
+  row.querySelector(".stations").replaceWith(all);
+  row.querySelector(".measured").replaceWith(measured);
+}
+
 function kind(s) {
   return s.simulated === null ? "real or simulated: not recorded" : s.simulated ? "simulated" : "real";
 }
@@ -43,8 +58,7 @@ export async function loadSurveys(first) {
   $("#surveys").replaceChildren(...list.slice().reverse().map((s) => {
     const item = el("li", {}, el("button", { type: "button", class: "row", "data-survey": s.id },
       chunk(`Survey ${s.id}`, "strong"), chunk(`${utc(s.start_wall_s)}–${clock(s.end_wall_s)} UTC`),
-      chunk(`${plural(s.stations, "station")} (${s.castable} castable)`),
-      chunk(`${s.measured} measured`), chunk(kind(s))));
+      ...counted(s.stations, s.castable, s.measured), chunk(kind(s))));
     item.firstChild.addEventListener("click", () => chooseSurvey(s.id));
     if (s.id === today.survey) item.firstChild.classList.add("chosen");
     return item;
@@ -78,6 +92,7 @@ async function refreshSurvey(id, choose) {
     const data = await getJSON(`/api/surveys/${id}/casts`);
     if (today.survey !== id) return;
     today.casts = data.casts;
+    recount(id, data.stations);
     today.map = prepareMap(data);
     drawMap();
     $("#casts").replaceChildren(...data.casts.map(castRow));
