@@ -32,3 +32,11 @@ class SurveySettings(BaseModel):
     max_speed_m_s: _Positive = 10.0
     # A Ping1D reading is placed on the track only between two fixes this close in time, s.
     max_gap_s: _Positive = 3.0
+    # Who made the map, for its metadata (the NetCDF grid's ACDD 1.3 attributes, which a
+    # data server such as ERDDAP shows); empty: left out, and `cc-daemon map` says so.
+    creator_name: str = ""
+    creator_email: str = ""
+    creator_url: str = ""
+    institution: str = ""
+    project: str = ""
+    license: str = ""
