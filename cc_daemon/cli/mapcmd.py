@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from cc_daemon.cli.data import journal_path
 from cc_daemon.cli.surveys import choose_survey, survey_choice
@@ -53,6 +54,11 @@ def add_command(subparsers: argparse._SubParsersAction[argparse.ArgumentParser])
     )
     parser.add_argument("--db", type=str, default=None, metavar="PATH", help="the journal")
     parser.add_argument(
+        "--config",
+        metavar="PATH",
+        help="the configuration whose [survey] keys to use (default: the daemon's search)",
+    )
+    parser.add_argument(
         "--survey",
         type=survey_choice,
         default=LATEST,
@@ -86,15 +92,13 @@ def add_command(subparsers: argparse._SubParsersAction[argparse.ArgumentParser])
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from cc_daemon.export import OptionalDependencyError
 
     if args.survey == ALL:
         print("cc-daemon map: one survey at a time: --survey N or latest", file=sys.stderr)
         return 2
     try:
-        settings = load_settings().survey
+        settings = load_settings(None if args.config is None else Path(args.config)).survey
     except ConfigError as exc:
         print(f"cc-daemon map: {exc}", file=sys.stderr)
         return 2
@@ -117,8 +121,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _map(args: argparse.Namespace, settings: object, output: object) -> int:
-    from pathlib import Path
-
     from cc_daemon.config.survey import SurveySettings
     from cc_daemon.export.bathy_netcdf import missing_metadata
     from cc_daemon.export.bathymap import MapOptions, make_map
