@@ -122,11 +122,11 @@ def test_the_barycentric_shortcut_is_scipys_own_arithmetic() -> None:
 
 
 def test_the_grid_leaves_a_missed_line_empty_and_knows_each_cells_distance() -> None:
-    x, y, segment = lines(count=7)
+    x, y, _segment = lines(count=7)
     keep = np.abs(y - (N0 + 60.0)) > 1.0  # line 4 was never sailed
     x, y = x[keep], y[keep]
     spec = GridSpec.covering(x, y, 5.0)
-    grid, blocks = make_grid(x, y, plane(x, y), spec, max_distance_m=15.0)
+    grid, _blocks = make_grid(x, y, plane(x, y), spec, max_distance_m=15.0)
     gx, gy = np.meshgrid(spec.x, spec.y)
     mapped = grid.mapped
     assert grid.depth_m[mapped] == pytest.approx(plane(gx, gy)[mapped], abs=1e-6)
@@ -190,7 +190,7 @@ def test_hypsography_of_a_grid_by_hand_and_of_a_cone_in_closed_form() -> None:
 
 def test_contours_follow_the_plane_and_stop_at_empty_cells() -> None:
     c = np.arange(0.0, 100.0, 5.0) + 2.5
-    gx, gy = np.meshgrid(c, c)
+    gx, _gy = np.meshgrid(c, c)
     depth = 1.0 + gx / 20.0  # 1.125 m to 5.875 m, rising east
     depth[:, :4] = np.nan  # the west edge not mapped
     assert levels(depth, 1.0) == [3.0, 4.0, 5.0]  # 2 m lies in the empty cells
