@@ -122,11 +122,8 @@ def write_lines_survey(
         point, ahead = track.at(t_s * speed_m_s)
         here[0] = (point, True)
         while station_ahead < min(ahead, len(mission.stations)):
-            _cast(journal, mission, station_ahead, int(t_s))
+            _cast(journal, mission, station_ahead, int(t_s), truth)
             station_ahead += 1
-            truth.casts += 1
-            truth.fix_kinds.append(EchoKind.GOOD)  # the station's M: a fix with its sounding
-            truth.jumped.append(False)
         if onboard:
             echo = ping()
             journal.record_sonar(ONBOARD_PORT, echo.distance_mm, echo.confidence_pct)
@@ -142,6 +139,10 @@ def write_lines_survey(
         if n % 4000 == 0:
             while (health := journal.health()).writable and health.pending_rows > max_pending:
                 time.sleep(0.005)
+    if duration_s is None:  # sailed to the end: the last station is there
+        while station_ahead < len(mission.stations):
+            _cast(journal, mission, station_ahead, int(end_s), truth)
+            station_ahead += 1
     journal.record_event("daemon_stopped")
     return truth
 
@@ -151,8 +152,11 @@ def _fields(p: Point, echo: Echo) -> tuple[int, int, int, int, int]:
     return lon, lat, round(ORIGIN_ALT_M * 1000), echo.distance_mm, echo.confidence_pct
 
 
-def _cast(journal: Journal, mission: Mission, index: int, t_s: int) -> None:
+def _cast(journal: Journal, mission: Mission, index: int, t_s: int, truth: SurveyTruth) -> None:
     """Station `index`'s cast, journaled as the daemon journals one (no soundings stop)."""
+    truth.casts += 1
+    truth.fix_kinds.append(EchoKind.GOOD)  # the station's M: a fix with its sounding
+    truth.jumped.append(False)
     station = mission.stations[index]
     depth = station.water_depth_m
     echo = Echo(round(depth * 1000), 95)
