@@ -199,3 +199,22 @@ def test_contours_follow_the_plane_and_stop_at_empty_cells() -> None:
     for contour in found:
         for line in contour.lines:
             assert line[:, 0] == pytest.approx(20.0 * (contour.level_m - 1.0), abs=1e-9)
+
+
+def test_a_line_sailed_half_way_is_not_bridged_to_by_the_hulls_sliver() -> None:
+    """The last line stopped half-way: the convex hull still spans the water beyond its end,
+    in long thin triangles from its last sounding; those cells are left empty, though a
+    sounding of the line before is within the maximum distance."""
+    x, y, _ = lines(count=4, length_m=400.0)
+    half = (y == N0 + 60.0) & (x < E0 + 200.0)  # line 4 runs west and stops at 200 m
+    x, y = x[~half], y[~half]
+    spec = GridSpec.covering(x, y, 5.0)
+    bent = 3.0 + 0.01 * (x - E0) ** 1.5 / 20.0  # no plane: a sliver would show
+    grid, _ = make_grid(x, y, bent, spec, max_distance_m=15.0)
+    gx, gy = np.meshgrid(spec.x, spec.y)
+    beyond = (gy > N0 + 45.0) & (gx < E0 + 150.0)
+    assert not grid.mapped[beyond].any()
+    below = (gy > N0 + 21.0) & (gy < N0 + 39.0) & (gx > E0 + 5) & (gx < E0 + 395)
+    assert grid.mapped[below].all()
+    where_sailed = (np.abs(gy - (N0 + 50.0)) < 3.0) & (gx > E0 + 210) & (gx < E0 + 395)
+    assert grid.mapped[where_sailed].all()

@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from cc_daemon.science.bathymetry import interpolate, spacing
 from cc_daemon.science.bathymetry.blocks import Blocks, GridSpec
-from cc_daemon.science.bathymetry.grid import Grid, make_grid
+from cc_daemon.science.bathymetry.grid import Grid, make_grid, max_edge_m
 from cc_daemon.science.bathymetry.validation import CrossValidation, block_kfold
 from cc_daemon.science.hypsography import Hypsography
 
@@ -66,7 +66,13 @@ def map_bed(
     reach = max_distance_m if max_distance_m is not None else spacing.max_distance_m(rules)
     spec = GridSpec.covering(x, y, cell)
     grid, blocks = make_grid(x, y, depth, spec, max_distance_m=reach, method=method)
-    cv = block_kfold(blocks, block_m=spacing.cv_block_m(rules), folds=folds, method=method)
+    cv = block_kfold(
+        blocks,
+        block_m=spacing.cv_block_m(rules),
+        folds=folds,
+        method=method,
+        max_edge_m=max_edge_m(reach),
+    )
     hypsography = None
     if grid.mapped_cells:
         finite = grid.depth_m[grid.mapped]

@@ -1,11 +1,12 @@
 """The gridded bed: block medians interpolated to cell centres, and what is left empty.
 
 A cell is mapped when the interpolation reaches it (inside the convex hull of
-the blocks: nothing is extrapolated) and a kept sounding lies within the
-maximum distance of its centre; every other cell stays empty (NaN), never
-guessed. Each cell also carries its distance to the nearest sounding (the map's
-own measure of how far it is from what was measured) and how many soundings
-fell in it. Rows run along y (north), columns along x (east).
+the blocks, in a triangle no side of which is longer than twice the maximum
+distance: nothing is extrapolated, nor bridged across water nobody sounded) and
+a kept sounding lies within the maximum distance of its centre; every other cell
+stays empty (NaN), never guessed. Each cell also carries its distance to the
+nearest sounding (the map's own measure of how far it is from what was
+measured) and how many soundings fell in it. Rows run along y (north), columns along x (east).
 
 Pure: arrays in, arrays out (numpy, scipy's KD-tree).
 """
@@ -13,6 +14,7 @@ Pure: arrays in, arrays out (numpy, scipy's KD-tree).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -53,6 +55,28 @@ class Grid:
         return self.mapped_cells / self.hull_cells if self.hull_cells else 0.0
 
 
+def max_edge_m(max_distance_m: float) -> float:
+    """The longest side of a triangle the grid interpolates in: twice the maximum distance,
+    so a triangle spanning two adjacent lines is used and one spanning a missed line, or
+    the hull's sliver along a line sailed half-way, is not."""
+    return 2.0 * max_distance_m
+
+
+def inside_hull(x: FloatArray, y: FloatArray, qx: FloatArray, qy: FloatArray) -> Any:
+    """Which query points lie inside the convex hull of the points (x, y)."""
+    from scipy.spatial import ConvexHull, Delaunay, QhullError
+
+    points = np.column_stack([x, y])
+    centre = points.mean(axis=0)
+    try:
+        corners = points[ConvexHull(points - centre).vertices] - centre
+        outline = Delaunay(corners)
+    except QhullError:
+        return np.zeros(np.shape(qx), dtype=bool)
+    q = np.column_stack([np.ravel(qx), np.ravel(qy)]) - centre
+    return (outline.find_simplex(q) >= 0).reshape(np.shape(qx))
+
+
 def nearest_m(x: FloatArray, y: FloatArray, qx: FloatArray, qy: FloatArray) -> FloatArray:
     """The distance from each query point to the nearest of the points (x, y)."""
     from scipy.spatial import cKDTree
@@ -75,11 +99,13 @@ def make_grid(
 ) -> tuple[Grid, Blocks]:
     """The bed on `spec` from the soundings kept, and the block medians it was made from."""
     blocks = block_median(x, y, depth, spec)
-    predict = interpolate.fit(blocks.x, blocks.y, blocks.depth, method)
+    predict = interpolate.fit(
+        blocks.x, blocks.y, blocks.depth, method, max_edge_m=max_edge_m(max_distance_m)
+    )
     gx, gy = np.meshgrid(spec.x, spec.y)
     bed = predict(gx, gy)
     distance = nearest_m(x, y, gx.ravel(), gy.ravel()).reshape(gx.shape)
-    hull_cells = int(np.count_nonzero(np.isfinite(bed)))
+    hull_cells = int(np.count_nonzero(inside_hull(blocks.x, blocks.y, gx, gy)))
     bed[distance > max_distance_m] = np.nan
     count = np.zeros(spec.nx * spec.ny, dtype=np.int64)
     count[blocks.cell] = blocks.count

@@ -30,9 +30,19 @@ DEFAULT = "linear"
 RBF_NEIGHBORS = 32
 
 
-def fit(x: FloatArray, y: FloatArray, depth: FloatArray, method: str = DEFAULT) -> Predictor:
+def fit(
+    x: FloatArray,
+    y: FloatArray,
+    depth: FloatArray,
+    method: str = DEFAULT,
+    *,
+    max_edge_m: float | None = None,
+) -> Predictor:
     """An interpolator of `depth` at (`x`, `y`) by `method`; it needs three points or more
-    that are not on one line (ValueError otherwise)."""
+    that are not on one line (ValueError otherwise). With `max_edge_m`, a point in a
+    triangle with a longer side gets NaN: such a triangle spans water nobody sounded (the
+    convex hull's sliver along a line sailed half-way, a missed line), and what it would
+    give there is a guess, however near one of its corners a sounding is."""
     from scipy.interpolate import (
         CloughTocher2DInterpolator,
         LinearNDInterpolator,
@@ -70,12 +80,28 @@ def fit(x: FloatArray, y: FloatArray, depth: FloatArray, method: str = DEFAULT) 
                 result[inside] = spline(q[inside])
             return result
 
+    too_long = _long_sides(triangles, max_edge_m)
+
     def predict(qx: FloatArray, qy: FloatArray) -> FloatArray:
         q = np.column_stack([np.ravel(qx), np.ravel(qy)]) - centre
-        result: FloatArray = np.asarray(inner(q), dtype=np.float64).reshape(np.shape(qx))
+        found = np.asarray(inner(q), dtype=np.float64)
+        if too_long is not None:
+            simplex = triangles.find_simplex(q)
+            found[(simplex >= 0) & too_long[np.maximum(simplex, 0)]] = np.nan
+        result: FloatArray = found.reshape(np.shape(qx))
         return result
 
     return predict
+
+
+def _long_sides(triangles: Any, max_edge_m: float | None) -> npt.NDArray[np.bool_] | None:
+    """Which triangles have a side longer than `max_edge_m` (None: no limit)."""
+    if max_edge_m is None:
+        return None
+    corners = triangles.points[triangles.simplices]
+    sides = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
+    result: npt.NDArray[np.bool_] = sides.max(axis=1) > max_edge_m
+    return result
 
 
 def _barycentric(triangles: Any) -> None:

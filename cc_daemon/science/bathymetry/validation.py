@@ -45,9 +45,10 @@ def block_kfold(
     folds: int = DEFAULT_FOLDS,
     method: str = interpolate.DEFAULT,
     seed: int = 0,
+    max_edge_m: float | None = None,
 ) -> CrossValidation:
     """Cross-validate `method` on `blocks`, holding out square blocks of `block_m` metres
-    `folds` times (seeded: the same answer every time)."""
+    `folds` times (seeded: the same answer every time); `max_edge_m` as the grid's."""
     if folds < 2:
         raise ValueError(f"{folds} folds: at least 2")
     group = np.column_stack([np.floor(blocks.x / block_m), np.floor(blocks.y / block_m)]).astype(
@@ -65,7 +66,7 @@ def block_kfold(
         if len(train) < 3 or not held.any():
             continue
         try:
-            predict = interpolate.fit(train.x, train.y, train.depth, method)
+            predict = interpolate.fit(train.x, train.y, train.depth, method, max_edge_m=max_edge_m)
         except ValueError:
             continue
         predicted = predict(blocks.x[held], blocks.y[held])
