@@ -25,6 +25,7 @@ SURVEY_SPEED_M_S = 1.5  # about 3 knots: what single-beam surveys from small boa
 DEFAULT_SPACING_M = 20.0
 DEFAULT_LINES = 4
 DEFAULT_LINE_LENGTH_M = 100.0
+FLOOR_SOFTNESS_M = 0.5  # the bed levels off smoothly where it would be cut flat
 
 
 def lines_route(spacing_m: float, lines: int, line_length_m: float) -> tuple[Point, ...]:
@@ -80,7 +81,7 @@ def make_lines_mission(
         for j in range(11)
     ]
     shoal = max(candidates, key=lambda c: min(c.distance_to(p) for p, _ in placed))
-    field = random_field(rng, shoal)
+    field = random_field(rng, shoal, floor_softness_m=FLOOR_SOFTNESS_M)
     waypoints: list[tuple[Point, ...]] = []
     before = 1  # the route's first point is the start
     for point, passed in placed:

@@ -33,7 +33,9 @@ _SHOAL_RADIUS_M = 40.0
 _MIN_SPACING_M = 180.0  # 4.5 shoal radii: the shoal's effect there is under 0.1 mm
 _PLACEMENT_ATTEMPTS = 100  # per station, before the mission is refused
 # The functions `DepthField.depth_xy` needs, for one position (numpy gives them for arrays).
-SCALAR = SimpleNamespace(sin=math.sin, cos=math.cos, exp=math.exp, fmax=max)
+SCALAR = SimpleNamespace(
+    sin=math.sin, cos=math.cos, exp=math.exp, fmax=max, fabs=math.fabs, log1p=math.log1p
+)
 
 
 def to_lat_lon(east_m: float, north_m: float) -> tuple[float, float]:
@@ -97,6 +99,10 @@ class DepthField:
     phase_n: float
     shoal: Point | None
     shoal_relief_m: float  # how much the shoal rises above the smooth bed at its centre
+    # 0: the bed is cut flat at MIN_CASTABLE_WATER_M where it would be shallower; more: it
+    # levels off smoothly over about this many metres (a lake has no plateau cut level at
+    # one depth, which would make a hypsography's area at that depth a coin toss)
+    floor_softness_m: float = 0.0
 
     def smooth_at(self, p: Point) -> float:
         """The bed without the shoal, never shallower than MIN_CASTABLE_WATER_M."""
@@ -116,6 +122,12 @@ class DepthField:
             * xp.cos(north / self.wavelength_n_m + self.phase_n)
             + self.ripple_m * xp.sin((east + north) / 90.0 + self.phase_n)
         )
+        soft = self.floor_softness_m
+        if soft > 0:
+            excess = (d - MIN_CASTABLE_WATER_M) / soft
+            return MIN_CASTABLE_WATER_M + soft * (
+                xp.fmax(excess, 0.0) + xp.log1p(xp.exp(-xp.fabs(excess)))
+            )
         return xp.fmax(d, MIN_CASTABLE_WATER_M)
 
     def depth_xy(self, east: Any, north: Any, xp: Any) -> Any:
@@ -197,7 +209,9 @@ class Mission:
         return SonarReading(round(distance * 1000), confidence)
 
 
-def random_field(rng: random.Random, shoal: Point | None) -> DepthField:
+def random_field(
+    rng: random.Random, shoal: Point | None, *, floor_softness_m: float = 0.0
+) -> DepthField:
     """A smooth bed drawn from `rng`, with a shoal rising to SHALLOW_WATER_M at `shoal`."""
     smooth = DepthField(
         base_m=rng.uniform(4.5, 6.0),
@@ -209,6 +223,7 @@ def random_field(rng: random.Random, shoal: Point | None) -> DepthField:
         phase_n=rng.uniform(0.0, 2 * math.pi),
         shoal=None,
         shoal_relief_m=0.0,
+        floor_softness_m=floor_softness_m,
     )
     if shoal is None:
         return smooth

@@ -18,8 +18,8 @@ can make: a sounding every metre along a line, none for `S` across. The rules
 
 The spacing is found as the median distance from points of the track to the
 nearest point of another pass (a point whose distance along the track is
-several times its distance across). A track with no second pass (one transit)
-has none. Pure: arrays in, numbers out.
+several times its distance across), for spacings up to about 150 m. A track with
+no second pass (one transit) has none. Pure: arrays in, numbers out.
 """
 
 from __future__ import annotations
@@ -76,8 +76,9 @@ def line_spacing_m(x: FloatArray, y: FloatArray, segment: IntArray) -> float | N
     if len(x) < 3:
         return None
     s = along_track_m(x, y, segment)
-    on_track = s[-1] - _SEGMENT_GAP_M * int(np.count_nonzero(segment[1:] != segment[:-1]))
-    first = _spacing(x, y, s, step_m=max(on_track / 200.0, 0.5), k=16)
+    # First a point every 5 m with 64 neighbours: a line's own points reach 160 m either
+    # way, so the next line is among them for any spacing up to that; then finer.
+    first = _spacing(x, y, s, step_m=5.0, k=64)
     if first is None:
         return None
     return _spacing(x, y, s, step_m=max(first / 4.0, 0.25), k=24) or first
