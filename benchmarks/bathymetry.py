@@ -50,6 +50,8 @@ LINES, LINE_M, SPACING_M = 64, 1000.0, 20.0
 ERRORS = EchoErrors(outlier_rate=0.03, dropout_rate=0.05)
 DRAFTS = {"autopilot_draft_m": 0.10, "onboard_draft_m": 0.15}
 GOAL_S, GOAL_MB = 15.0, 500.0
+# BENCH_BATHY_COMPARE=1: also each interpolator's figures (docs/maps.md's choice), minutes more.
+COMPARE = os.environ.get("BENCH_BATHY_COMPARE") == "1"
 
 
 def write_day(db: Path) -> SurveyTruth:
@@ -141,7 +143,41 @@ def main() -> int:
         ok &= hypsography_goals(made, truth, gx, gy)
         ok &= qc_goals(made, truth)
         ok &= scale_goals(db, Path(tmp))
+        if COMPARE:
+            compare(made, truth)
     return 0 if ok else 1
+
+
+def compare(made: Any, truth: SurveyTruth) -> None:
+    """Each interpolator on the same block medians: its true RMSE, its reported CV RMSE
+    and the time to grid and to cross-validate (figures, no goal)."""
+    from cc_daemon.science.bathymetry import interpolate
+    from cc_daemon.science.bathymetry.grid import make_grid, max_edge_m
+    from cc_daemon.science.bathymetry.spacing import cv_block_m
+    from cc_daemon.science.bathymetry.validation import block_kfold
+
+    kept = made.soundings.kept
+    x, y, z = (a[kept] for a in (made.soundings.x_m, made.soundings.y_m, made.soundings.depth_m))
+    spec, reach = made.bed.grid.spec, made.bed.max_distance_m
+    gx, gy = np.meshgrid(spec.x, spec.y)
+    bed = true_bed(truth, made.soundings.crs, gx, gy)
+    for method in interpolate.METHODS:
+        began = time.process_time()
+        grid, blocks = make_grid(x, y, z, spec, max_distance_m=reach, method=method)
+        gridded = time.process_time() - began
+        began = time.process_time()
+        cv = block_kfold(blocks, block_m=cv_block_m(made.bed.rules_spacing_m), method=method,
+                         max_edge_m=max_edge_m(reach))  # fmt: skip
+        validated = time.process_time() - began
+        error = (grid.depth_m - bed)[grid.mapped]
+        rmse = float(np.sqrt(np.mean(error**2)))
+        print(
+            f"  ----  {method:<10} true RMSE {rmse:.4f} m, bias {error.mean():+.4f} m,"
+            f" largest {np.abs(error).max():.3f} m; CV RMSE {cv.rmse_m:.4f} m"
+            f" (x{cv.rmse_m / rmse:.2f}); CPU {gridded:.1f} s to grid, {validated:.1f} s to"
+            " cross-validate",
+            flush=True,
+        )
 
 
 def hypsography_goals(made: Any, truth: SurveyTruth, gx: Any, gy: Any) -> bool:
