@@ -253,26 +253,6 @@ def add_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
         help="do not expect the daemon's default plan (the shoal refused, the rest cast)",
     )
     group.add_argument("--plain", action="store_true", help="plain log lines even on a terminal")
-    group.add_argument(
-        "--pattern",
-        choices=PATTERNS,
-        default="stations",
-        help="stations (the default): a meandering transit from station to station; lines: "
-        "parallel lines for bathymetry, sailed at 1.5 m/s whatever the pace, the stations "
-        "spread along them (then `cc-daemon map`)",
-    )
-    group.add_argument(
-        "--spacing", type=_metres, default=DEFAULT_SPACING_M, metavar="M",
-        help=f"with --pattern lines: metres between lines ({DEFAULT_SPACING_M:g})",
-    )  # fmt: skip
-    group.add_argument(
-        "--lines", type=_count, default=DEFAULT_LINES, metavar="N",
-        help=f"with --pattern lines: how many ({DEFAULT_LINES})",
-    )  # fmt: skip
-    group.add_argument(
-        "--line-length", type=_metres, default=DEFAULT_LINE_LENGTH_M, metavar="M",
-        help=f"with --pattern lines: each line's length ({DEFAULT_LINE_LENGTH_M:g} m)",
-    )  # fmt: skip
     p.set_defaults(handler=_autopilot_handler)
 
 
