@@ -218,3 +218,10 @@ def test_a_line_sailed_half_way_is_not_bridged_to_by_the_hulls_sliver() -> None:
     assert grid.mapped[below].all()
     where_sailed = (np.abs(gy - (N0 + 50.0)) < 3.0) & (gx > E0 + 210) & (gx < E0 + 395)
     assert grid.mapped[where_sailed].all()
+
+
+def test_too_few_held_out_blocks_estimate_nothing() -> None:
+    x, y, _ = lines(count=2, length_m=30.0)
+    blocks = block_median(x, y, plane(x, y), GridSpec.covering(x, y, 5.0))
+    cv = block_kfold(blocks, block_m=10.0)
+    assert cv.predicted < 20 and math.isnan(cv.rmse_m) and math.isnan(cv.bias_m)

@@ -27,6 +27,7 @@ import numpy as np
 from cc_daemon import __version__
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.export.bathymap import SurveyMap
+from cc_daemon.export.mapsummary import accuracy
 from cc_daemon.store.records import iso_utc
 
 FILL = -9999.0
@@ -78,8 +79,8 @@ def global_attributes(survey_map: SurveyMap, lat: Any, lon: Any) -> dict[str, An
             f"{simulated}Depth of the lake bed below the water surface of the survey's day,"
             f" gridded at {bed.cell_m:g} m from {kept} single-beam echosounder soundings"
             f" (block median, then {bed.method} interpolation); cells farther than"
-            f" {bed.max_distance_m:.1f} m from any sounding are left empty. Cross-validated"
-            f" RMSE {bed.cv.rmse_m:.3f} m, bias {bed.cv.bias_m:+.3f} m (an estimate)."
+            f" {bed.max_distance_m:.1f} m from any sounding are left empty. Accuracy:"
+            f" {accuracy(survey_map)}."
         ),
         "keywords": "bathymetry, lake, reservoir, hypsography, single-beam echosounder",
         "keywords_vocabulary": "GCMD Science Keywords",

@@ -19,6 +19,7 @@ import numpy as np
 
 from cc_daemon.export.bathymap import SurveyMap
 from cc_daemon.export.mapframe import figure, place_labels
+from cc_daemon.export.mapsummary import accuracy
 from cc_daemon.export.plot import DPI
 from cc_daemon.science.bathymetry.contours import Contour
 from cc_daemon.science.bathymetry.spacing import nice
@@ -85,8 +86,8 @@ def map_figure(survey_map: SurveyMap, found: list[Contour]) -> Any:
     simulated = "SIMULATED · " if survey_map.simulated else ""
     ax.set_title(
         f"{simulated}Lake bed, survey {survey_map.survey.id}: {bed.cell_m:g} m cells,"
-        f" {bed.method} interpolation\ncross-validated RMSE {bed.cv.rmse_m:.3f} m,"
-        f" bias {bed.cv.bias_m:+.3f} m (an estimate)"
+        f" {bed.method} interpolation\n{accuracy(survey_map).split(' (')[0]}"
+        + (" (an estimate)" if np.isfinite(bed.cv.rmse_m) else "")
     )
     handles, _ = ax.get_legend_handles_labels()
     handles.append(

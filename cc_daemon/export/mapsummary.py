@@ -71,14 +71,27 @@ def text(survey_map: SurveyMap) -> str:
         f"depth            deepest {deep}, mean {mean}",
         f"volume           {volume} (of the water over the mapped area)",
         f"soundings        {kept} used, {rejected} rejected" + (f": {reasons}" if reasons else ""),
-        f"accuracy         cross-validated RMSE {f['cv_rmse_m']:.3f} m, bias"
-        f" {f['cv_bias_m']:+.3f} m (an estimate: {f['cv_predicted']} held-out blocks)",
+        f"accuracy         {accuracy(survey_map)}",
         f"grid             {f['cell_m']:g} m cells, {f['interpolation']} interpolation, empty"
         f" beyond {f['max_distance_m']:.1f} m of a sounding; line spacing {spacing}",
     ]
     if f["water_level_m"] is not None:
         lines.append(f"water level      {f['water_level_m']:g} m above sea level")
     return "\n".join(lines) + "\n"
+
+
+def accuracy(survey_map: SurveyMap) -> str:
+    """The cross-validated RMSE and bias, said as an estimate, or why there is none."""
+    cv = survey_map.bed.cv
+    if not np.isfinite(cv.rmse_m):
+        return (
+            f"not estimated: {cv.predicted} held-out blocks could be predicted, too few"
+            " (a survey of a few lines)"
+        )
+    return (
+        f"cross-validated RMSE {cv.rmse_m:.3f} m, bias {cv.bias_m:+.3f} m (an estimate:"
+        f" {cv.predicted} held-out blocks)"
+    )
 
 
 def finite(value: Any) -> Any:

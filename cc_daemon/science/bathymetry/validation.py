@@ -26,6 +26,7 @@ from cc_daemon.science.bathymetry import interpolate
 from cc_daemon.science.bathymetry.blocks import Blocks
 
 DEFAULT_FOLDS = 5
+MIN_PREDICTED = 20  # fewer held-out medians estimate nothing: the RMSE is NaN then
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,8 +77,8 @@ def block_kfold(
     own = np.concatenate(noise) if noise else np.zeros(0)
     usable = np.isfinite(found)
     found, own = found[usable], own[usable]
-    if len(found) == 0:
-        return CrossValidation(float("nan"), float("nan"), 0, folds, block_m, float("nan"))
+    if len(found) < MIN_PREDICTED:
+        return CrossValidation(float("nan"), float("nan"), len(found), folds, block_m, float("nan"))
     # A held-out median carries its own noise; the map's error is what is left of the
     # residuals' mean square once that is taken out.
     raw = float(np.mean(found**2))
