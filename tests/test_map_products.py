@@ -308,3 +308,12 @@ def test_the_command_writes_every_product_and_says_what_it_cannot_do(
     assert bad.returncode == 2 and "survey.min_confidence_pct" in bad.stderr
     missing = run_map("--db", str(tmp_path / "none.db"), "-o", str(out), cwd=tmp_path)
     assert missing.returncode == 1 and missing.stderr.count("\n") <= 2
+    from cc_daemon.store import Journal
+
+    empty = tmp_path / "empty.db"
+    journal = Journal(empty)
+    journal.open()
+    journal.close()
+    nothing = run_map("--db", str(empty), "-o", str(out), cwd=tmp_path)
+    assert nothing.returncode == 1 and "Traceback" not in nothing.stderr
+    assert "no survey" in nothing.stderr

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cc_daemon.cli.data import journal_path
 from cc_daemon.cli.surveys import choose_survey, survey_choice
@@ -19,6 +20,9 @@ from cc_daemon.config import load_settings
 from cc_daemon.core.errors import ConfigError
 from cc_daemon.store import JournalReader, StoreError
 from cc_daemon.store.surveys import ALL, LATEST
+
+if TYPE_CHECKING:
+    from cc_daemon.config.survey import SurveySettings
 
 METHODS = ("linear", "cubic", "thin-plate")  # science.bathymetry.interpolate.METHODS
 
@@ -120,14 +124,12 @@ def run(args: argparse.Namespace) -> int:
         return 1
 
 
-def _map(args: argparse.Namespace, settings: object, output: object) -> int:
-    from cc_daemon.config.survey import SurveySettings
+def _map(args: argparse.Namespace, settings: SurveySettings, output: Path) -> int:
     from cc_daemon.export.bathy_netcdf import missing_metadata
     from cc_daemon.export.bathymap import MapOptions, make_map
     from cc_daemon.export.mapproducts import write_all
     from cc_daemon.export.mapsummary import text
 
-    assert isinstance(settings, SurveySettings) and isinstance(output, Path)
     options = MapOptions(
         survey=settings,
         cell_m=args.cell,
@@ -139,8 +141,10 @@ def _map(args: argparse.Namespace, settings: object, output: object) -> int:
     db = journal_path(args)
     with JournalReader(db) as reader:
         choose_survey(reader, args.survey, "map")
-        chosen = next(s for s in reader.surveys() if s.id == reader.survey)
-        survey_map = make_map(reader, chosen, options)
+        chosen = [s for s in reader.surveys() if s.id == reader.survey]
+        if not chosen:
+            raise StoreError(f"no survey in {db}: the daemon never recorded a fix there")
+        survey_map = make_map(reader, chosen[0], options)
     paths = write_all(survey_map, output)
     sys.stdout.write(text(survey_map))
     print(f"wrote {', '.join(p.name for p in paths.values())} to {output}", file=sys.stderr)
