@@ -30,6 +30,7 @@ MODULES = [
     "web",
     "journal_attacks",
     "web_attacks",
+    "bathymetry",
 ]
 
 

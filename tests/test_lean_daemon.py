@@ -43,6 +43,15 @@ _NEVER = {
         "cc_daemon.store.scratch",
     ),
     "the sonde's modules with no sonde": ("cc_daemon.drivers.sonde",),
+    # The lake floor's science and its libraries are the data tools' extra, never the service's.
+    "the science floor and its libraries": (
+        "cc_daemon.science",
+        "numpy",
+        "scipy",
+        "pyproj",
+        "contourpy",
+        "tifffile",
+    ),
 }
 
 

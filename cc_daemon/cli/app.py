@@ -179,6 +179,7 @@ _COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("recover",), "cc_daemon.cli.recover", "add_command"),
     (("web",), "cc_daemon.cli.web.command", "add_command"),
     (("simulate-sonar",), "cc_daemon.sim.sonar_cli", "add_commands"),
+    (("map",), "cc_daemon.cli.mapcmd", "add_command"),
 )
 _HELP = ("-h", "--help")
 

@@ -37,6 +37,7 @@ from cc_daemon.config.rules import (
     _upper,
 )
 from cc_daemon.config.sonde import SondeSettings
+from cc_daemon.config.survey import SurveySettings
 from cc_daemon.core.winch.drum import CurrentSensor, Drum, VoltageDivider
 from cc_daemon.core.winch.encoder import max_pulse_rate
 from cc_daemon.core.winch.sensors import RAIL_MARGIN, TURNING_MIN_A
@@ -530,6 +531,7 @@ class Settings(BaseModel):
     sonde: SondeSettings = SondeSettings()
     sonar: SonarSettings = SonarSettings()
     web: WebSettings = WebSettings()
+    survey: SurveySettings = SurveySettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
     # What load_settings merged and where each value came from, so a check made

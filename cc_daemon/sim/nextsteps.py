@@ -68,3 +68,15 @@ def next_steps(
     if db.absolute() == cwd / "simulate.db" and _has_make_targets(cwd):
         lines.append("make export plot   (CSV, GeoJSON, NetCDF and the survey map, beside it)")
     return lines
+
+
+def map_steps(db: Path, *, argv0: str | None = None, cwd: Path | None = None) -> list[str]:
+    """The lake floor's command for journal `db` (its latest survey: this run's), and the
+    products it writes, each line runnable or readable as printed."""
+    cwd = cwd or Path.cwd()
+    out = _shown(Path(f"{db.absolute().with_suffix('')}-map"), cwd)
+    return [
+        f"{program(argv0, cwd=cwd)} map --db {_shown(db, cwd)} -o {out}",
+        f"  writes bathymetry.nc, depth.tif, contours.geojson, hypsography.csv, map.png and"
+        f" summary.txt into {out} (docs/maps.md; --pattern lines flies a survey worth mapping)",
+    ]

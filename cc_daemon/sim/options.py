@@ -13,12 +13,26 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from cc_daemon.sim.autopilot import UCM_2023_FRAME_PERIOD_S, AutopilotConfig, Firmware
-from cc_daemon.sim.mission import MIN_CASTABLE_WATER_M, SHALLOW_WATER_M, SONAR_MAX_NOISE_M
+from cc_daemon.sim.lines import (
+    DEFAULT_LINE_LENGTH_M,
+    DEFAULT_LINES,
+    DEFAULT_SPACING_M,
+    SURVEY_SPEED_M_S,
+    make_lines_mission,
+)
+from cc_daemon.sim.mission import (
+    MIN_CASTABLE_WATER_M,
+    SHALLOW_WATER_M,
+    SONAR_MAX_NOISE_M,
+    Mission,
+    make_mission,
+)
 
 if TYPE_CHECKING:
     from cc_daemon.config import CastSettings, Settings
 
 DEFAULT_DB = Path("simulate.db")
+PATTERNS = ("stations", "lines")
 STALL_AT_M = 1.0  # shallower than every castable station's plan (>= 1.95 m)
 
 
@@ -77,8 +91,15 @@ class SimOptions:
     sonar: bool = True  # the autopilot reads a Ping1D: simulated on a pty, or at sonar_port
     sonar_port: str | None = None  # a real Ping1D (a bench test of the whole chain)
     firmware: Firmware = "ucm-2023"  # which autopilot firmware to behave as
+    # "lines": parallel lines for bathymetry (`sim.lines`), sailed at survey speed
+    pattern: str = "stations"
+    spacing_m: float = DEFAULT_SPACING_M
+    lines: int = DEFAULT_LINES
+    line_length_m: float = DEFAULT_LINE_LENGTH_M
 
     def __post_init__(self) -> None:
+        if self.pattern not in PATTERNS:
+            raise ValueError(f"--pattern {self.pattern}: one of {', '.join(PATTERNS)}")
         if self.stations < 1:
             raise ValueError(f"--stations {self.stations}: allowed >= 1")
         if not 0.0 <= self.corrupt <= 1.0:
@@ -87,6 +108,24 @@ class SimOptions:
             raise ValueError(f"--drop-link-at {self.drop_link_at}: allowed >= 0 (seconds)")
         if self.drop_link_for <= 0:
             raise ValueError(f"--drop-link-for {self.drop_link_for}: allowed > 0 (seconds)")
+
+    def mission(self) -> Mission:
+        """The run's mission (ValueError: one that cannot be laid out)."""
+        if self.pattern == "lines":
+            return make_lines_mission(
+                self.stations,
+                self.seed,
+                spacing_m=self.spacing_m,
+                lines=self.lines,
+                line_length_m=self.line_length_m,
+            )
+        return make_mission(self.stations, self.seed)
+
+    @property
+    def boat_speed_m_s(self) -> float:
+        """Lines are sailed at survey speed whatever the pace: soundings a metre or so
+        apart, as a real survey's (the pace shortens the casts)."""
+        return SURVEY_SPEED_M_S if self.pattern == "lines" else self.chosen_pace.boat_speed_m_s
 
     @property
     def chosen_pace(self) -> Pace:
@@ -215,7 +254,7 @@ def autopilot_config(options: SimOptions, settings: Settings) -> AutopilotConfig
     pace = options.chosen_pace
     return AutopilotConfig(
         **firmware_profile(options.firmware, pace.frame_period_s),
-        boat_speed_m_s=pace.boat_speed_m_s,
+        boat_speed_m_s=options.boat_speed_m_s,
         resend_m_during_cast=options.resend_m,
         finish_timeout_s=pace.finish_timeout_s(settings.cast.max_duration_s),
         max_line_m=settings.winch.max_line_m,

@@ -239,8 +239,7 @@ class Run:
                 self.console.event(now, "survey over")
             return
         if ap.phase is Phase.CRUISING:
-            begin, end = self.mission.leg(ap.index)
-            length = begin.distance_to(end)
+            length = self.mission.leg_length_m(ap.index)
             speed = ap.config.boat_speed_m_s
             self.console.event(
                 now,
@@ -267,8 +266,7 @@ class Run:
         station = ap.station
         if station is None:
             return
-        _, end = self.mission.leg(ap.index)
-        to_go = ap.position(now).distance_to(end)
+        to_go = ap.to_go_m(now)
         speed = ap.config.boat_speed_m_s
         self.console.event(
             now, f"under way to {station.name}: {to_go:.0f} m to go, ETA {to_go / speed:.0f} s"
