@@ -63,8 +63,8 @@ def execute(
     commanded = False
     for action in actions:
         match action:
-            case CommandWinch(depth_m=depth):
-                physics.command(now, depth)
+            case CommandWinch(depth_m=depth, slow=slow, max_speed_m_s=limit):
+                physics.command(now, depth, slow=slow, max_speed_m_s=limit)
                 run.commands.append((now, depth))
                 commanded = True
             case StopWinch(reason=reason):
