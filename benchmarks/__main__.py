@@ -29,6 +29,7 @@ MODULES = [
     "sonar_rss",
     "web",
     "journal_attacks",
+    "profiles",
 ]
 
 
