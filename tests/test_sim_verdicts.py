@@ -15,7 +15,7 @@ from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig, Phase
 from cc_daemon.sim.commands import add_simulate_arguments, options_from_args
 from cc_daemon.sim.console import SimConsole, summary_lines
 from cc_daemon.sim.mission import make_mission
-from cc_daemon.sim.nextsteps import next_steps, program
+from cc_daemon.sim.nextsteps import next_steps, profile_steps, program
 from cc_daemon.sim.options import FAST, REALTIME, SimOptions, pace_changes
 from cc_daemon.sim.runner import _headline
 from cc_daemon.sim.session import PROGRESS_EVERY_S, Run
@@ -187,6 +187,12 @@ def test_next_steps_are_runnable_as_printed(tmp_path: Path) -> None:
     elsewhere = next_steps(Path("/data/a b.db"), None, argv0=str(venv_program), cwd=tmp_path)
     assert elsewhere[0] == ".venv/bin/cc-daemon casts --db '/data/a b.db'"
     assert not any(step.startswith("make") for step in elsewhere)
+    profiles = profile_steps(tmp_path / "simulate.db", argv0=str(venv_program), cwd=tmp_path)
+    assert profiles[0] == ".venv/bin/cc-daemon profiles --db simulate.db -o simulate-profiles"
+    assert profiles[1].startswith("  makes simulate-profiles/: profiles.nc and profiles.csv")
+    assert profile_steps(Path("/data/a b.db"), argv0=str(venv_program), cwd=tmp_path)[0] == (
+        ".venv/bin/cc-daemon profiles --db '/data/a b.db' -o '/data/a b-profiles'"
+    )
 
 
 def test_the_headline_counts_stations_in_english() -> None:
