@@ -15,13 +15,11 @@ the tests. netCDF4 is imported when the file is written; it never reads the jour
 from __future__ import annotations
 
 import math
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from cc_daemon import __version__
 from cc_daemon.export import OptionalDependencyError
-from cc_daemon.export.netcdf import TIME_UNITS
+from cc_daemon.export.netcdf import TIME_UNITS, profile_globals
 from cc_daemon.export.profiles.survey import Survey
 from cc_daemon.export.profiles.tables import WAYS, provenance_line, readings_depth, way
 from cc_daemon.export.provenance import of_casts
@@ -49,14 +47,9 @@ def write(survey: Survey, path: Path) -> int:
         raise ValueError("no profiles to write")
     depths = survey.casts[0].processed.down.depth_m
     with netCDF4.Dataset(str(path), "w", format="NETCDF4_CLASSIC") as nc:
-        nc.Conventions = "CF-1.8"
-        nc.featureType = "profile"
-        nc.cdm_data_type = "Profile"
-        nc.title = "Binned water-quality profiles of an autonomous survey boat's sonde"
-        nc.source = f"cc-daemon {__version__} survey journal"
-        created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-        nc.date_created = created
-        nc.history = f"{created} written by cc-daemon {__version__} profiles"
+        profile_globals(
+            nc, "Binned water-quality profiles of an autonomous survey boat's sonde", "profiles"
+        )
         made = of_casts([c.cast for c in survey.casts])
         nc.winch_backend = made.winch_backend
         nc.simulated = made.simulated
@@ -157,26 +150,21 @@ def write(survey: Survey, path: Path) -> int:
             var(c.name, "f4", ("profile", "depth"), **attrs)[:] = np.array(
                 [p.value[c.name] for p in profiles]
             )
-            var(
-                f"{c.name}_mean",
-                "f4",
-                ("profile", "depth"),
-                _FillValue=math.nan,
-                long_name=f"{c.long_name}, mean of the bin's readings",
-                units=unit,
-                coordinates=where,
-                cell_methods="depth: mean",
-            )[:] = np.array([p.mean[c.name] for p in profiles])
-            var(
-                f"{c.name}_sd",
-                "f4",
-                ("profile", "depth"),
-                _FillValue=math.nan,
-                long_name=f"{c.long_name}, standard deviation of the bin's readings",
-                units=unit,
-                coordinates=where,
-                cell_methods="depth: standard_deviation",
-            )[:] = np.array([p.std[c.name] for p in profiles])
+            for suffix, what, method in (
+                ("mean", "mean", "mean"),
+                ("sd", "standard deviation", "standard_deviation"),
+            ):
+                statistic = [p.mean if suffix == "mean" else p.std for p in profiles]
+                var(
+                    f"{c.name}_{suffix}",
+                    "f4",
+                    ("profile", "depth"),
+                    _FillValue=math.nan,
+                    long_name=f"{c.long_name}, {what} of the bin's readings",
+                    units=unit,
+                    coordinates=where,
+                    cell_methods=f"depth: {method}",
+                )[:] = np.array([values[c.name] for values in statistic])
             var(
                 f"{c.name}_count",
                 "i4",

@@ -29,6 +29,7 @@ import numpy.typing as npt
 from cc_daemon.science.interpolation import approx
 from cc_daemon.science.limnology.thermocline import (
     MIXED_CUTOFF_C,
+    as_profile,
     density_gradient,
     thermo_depth,
 )
@@ -61,10 +62,7 @@ def meta_depths(
 ) -> tuple[float, float]:
     """The metalimnion's top and bottom depths (m) in a profile of `temperature_c` (°C)
     at `depth_m` (m, unique, any order); (NaN, NaN) with no thermocline."""
-    t = np.asarray(temperature_c, dtype=np.float64)
-    z = np.asarray(depth_m, dtype=np.float64)
-    if len(t) != len(z):
-        raise ValueError("temperature and depth must have the same length")
+    t, z = as_profile(temperature_c, depth_m)
     if np.any(np.isnan(t)):
         return math.nan, math.nan
     if len(t) < 3:

@@ -29,6 +29,7 @@ import numpy.typing as npt
 from cc_daemon.science.hypsography import Hypsography
 from cc_daemon.science.interpolation import approx, regular
 from cc_daemon.science.limnology.density import water_density
+from cc_daemon.science.limnology.thermocline import as_profile
 
 GRAVITY_M_S2 = 9.81
 LAYER_M = 0.1
@@ -44,12 +45,9 @@ def schmidt_stability(
     increasing) in a lake whose horizontal area is `area_m2` (m²) at `area_depth_m` (m,
     increasing; rLakeAnalyzer's `bthA`, `bthD`). NaN where the lake's areas do not
     reach the profile's top. Raises ValueError when the area at the top is 0."""
-    t = np.asarray(temperature_c, dtype=np.float64)
-    z = np.asarray(depth_m, dtype=np.float64)
+    t, z = as_profile(temperature_c, depth_m)
     area = np.asarray(area_m2, dtype=np.float64)
     at = np.asarray(area_depth_m, dtype=np.float64)
-    if len(t) != len(z):
-        raise ValueError("temperature and depth must have the same length")
     if len(area) != len(at):
         raise ValueError("the areas and their depths must have the same length")
     if len(t) == 0:

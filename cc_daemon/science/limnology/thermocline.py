@@ -72,6 +72,17 @@ def _peaks(gradient: FloatArray, threshold: float) -> list[int]:
     return found
 
 
+def as_profile(
+    temperature_c: npt.ArrayLike, depth_m: npt.ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """A profile's temperatures and depths as arrays of one length (ValueError if not)."""
+    t = np.asarray(temperature_c, dtype=np.float64)
+    z = np.asarray(depth_m, dtype=np.float64)
+    if len(t) != len(z):
+        raise ValueError("temperature and depth must have the same length")
+    return t, z
+
+
 def thermo_depth(
     temperature_c: npt.ArrayLike,
     depth_m: npt.ArrayLike,
@@ -86,10 +97,7 @@ def thermo_depth(
     `seasonal`: the seasonal thermocline (the deepest distinct gradient maximum) rather
     than the largest gradient's. Raises ValueError on repeated depths.
     """
-    t = np.asarray(temperature_c, dtype=np.float64)
-    z = np.asarray(depth_m, dtype=np.float64)
-    if len(t) != len(z):
-        raise ValueError("temperature and depth must have the same length")
+    t, z = as_profile(temperature_c, depth_m)
     if np.any(np.isnan(z)):
         raise ValueError("every depth must be a number")
     if np.any(np.isnan(t)) or len(t) < 3:
