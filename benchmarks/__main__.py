@@ -31,6 +31,7 @@ MODULES = [
     "journal_attacks",
     "web_attacks",
     "bathymetry",
+    "profiles",
 ]
 
 

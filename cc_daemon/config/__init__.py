@@ -20,6 +20,7 @@ from cc_daemon.config.loading import (
     FLAG_NAMES,
     load_settings,
 )
+from cc_daemon.config.profile import ProfileSettings
 from cc_daemon.config.rules import STANDARD_BAUDRATES
 from cc_daemon.config.schema import (
     CastSettings,
@@ -43,6 +44,7 @@ __all__ = [
     "STANDARD_BAUDRATES",
     "CastSettings",
     "LogSettings",
+    "ProfileSettings",
     "SerialSettings",
     "Settings",
     "SonarSettings",

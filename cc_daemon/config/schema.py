@@ -20,6 +20,7 @@ from pydantic import (
 )
 
 from cc_daemon.config import naming
+from cc_daemon.config.profile import ProfileSettings
 from cc_daemon.config.rules import (
     _HOUR_S,
     _SECTION,
@@ -532,6 +533,7 @@ class Settings(BaseModel):
     sonar: SonarSettings = SonarSettings()
     web: WebSettings = WebSettings()
     survey: SurveySettings = SurveySettings()
+    profile: ProfileSettings = ProfileSettings()
 
     _source_file: Path | None = PrivateAttr(default=None)
     # What load_settings merged and where each value came from, so a check made
@@ -572,6 +574,16 @@ class Settings(BaseModel):
                 "{0} needs a sonde: set {1} (the R-M depth would come from nowhere)",
                 "cast.depth_source",
                 "sonde.backend",
+            )
+        # The default's temperature applies where the map has one; a name given
+        # must be in the map.
+        names = {p.name for p in self.sonde.parameters}
+        given = "resolve" in self.profile.model_fields_set
+        if given and any(name not in names for name in self.profile.resolve):
+            raise _impossible(
+                "{0} must name parameters of {1} (each with its response_s)",
+                "profile.resolve",
+                "sonde.parameters",
             )
         if self.sonar.port is not None and self.sonar.port == self.serial.port:
             raise _impossible(

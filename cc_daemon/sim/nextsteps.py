@@ -80,3 +80,15 @@ def map_steps(db: Path, *, argv0: str | None = None, cwd: Path | None = None) ->
         f"  writes bathymetry.nc, depth.tif, contours.geojson, hypsography.csv, map.png and"
         f" summary.txt into {out} (docs/maps.md; --pattern lines flies a survey worth mapping)",
     ]
+
+
+def profile_steps(db: Path, *, argv0: str | None = None, cwd: Path | None = None) -> list[str]:
+    """The profiles' command for journal `db` and what it makes (docs/profiles.md)."""
+    cwd = cwd or Path.cwd()
+    out = _shown(Path(f"{db.absolute().with_suffix('')}-profiles"), cwd)
+    return [
+        f"{program(argv0, cwd=cwd)} profiles --db {_shown(db, cwd)} -o {out}",
+        f"  makes {out}/: profiles.nc and profiles.csv (binned, lag-corrected), stations.csv"
+        " and stations.geojson (thermocline, metalimnion, oxycline, DCM, hypoxia, surface,"
+        " bottom), cast-N.png (each cast), section-P.png (each parameter along the survey)",
+    ]

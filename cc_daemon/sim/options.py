@@ -188,6 +188,7 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
         # The current sensor: to read garbage from, or to tell a dead encoder from a jam.
         gpio["adc"] = True
     base["cast"].update(pace.cast)
+    base["profile"].update(pace_profile(options))
     base["store"]["path"] = str(options.db_path.absolute())
     if base["status"]["path"] is None:
         # The run's own status and control sockets, beside its pty: two simulations
@@ -216,6 +217,21 @@ def _number(value: float) -> str:
     return f"{value:g}"
 
 
+def pace_profile(options: SimOptions) -> dict[str, Any]:
+    """The [profile] a pace that speeds the winch up runs with: its casts are not slowed
+    down for the profile (the world is fast, not the sensors), so bins as thick as the
+    probe travels between two readings (1.25 m at the fast pace), each of one reading.
+    A pace at the winch's own speed keeps the configured [profile]."""
+    from cc_daemon.config import Settings
+
+    pace = options.chosen_pace
+    if pace.winch_speed_m_s is None:
+        return {}
+    period = (options.settings or Settings()).sonde.period_s
+    travel = min(max(round(pace.winch_speed_m_s * period, 2), 0.01), 5.0)
+    return {"bin_m": travel, "min_count": 1, "resolve": []}
+
+
 def pace_changes(options: SimOptions) -> list[str]:
     """What the run's pace changed in the user's settings, each as `key old -> new`.
 
@@ -235,7 +251,18 @@ def pace_changes(options: SimOptions) -> list[str]:
     for key, value in pace.cast.items():
         if current[key] != value:
             changes.append(f"cast.{key} {_number(current[key])} -> {_number(value)}")
+    profile = base.profile.model_dump()
+    for key, value in pace_profile(options).items():
+        mine = list(profile[key]) if isinstance(profile[key], tuple) else profile[key]
+        if mine != value:
+            changes.append(f"profile.{key} {_shown(profile[key])} -> {_shown(value)}")
     return changes
+
+
+def _shown(value: object) -> str:
+    if isinstance(value, tuple | list):
+        return "[" + ", ".join(map(str, value)) + "]"
+    return _number(value) if isinstance(value, float | int) else str(value)
 
 
 def firmware_profile(firmware: Firmware, frame_period_s: float | None) -> dict[str, Any]:

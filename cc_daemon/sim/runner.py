@@ -89,7 +89,7 @@ def _headline(options: SimOptions, mission: Mission) -> str:
     elif pace is REALTIME:
         head += (
             f"\n  {pace.name} pace: boat {options.boat_speed_m_s:g} m/s; "
-            "your winch and cast settings as configured"
+            "your winch, cast and profile settings as configured"
         )
     return head
 

@@ -178,7 +178,8 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             sensor_fault=self._sensing.fault,
         )
 
-    def move_to(self, depth_m: float, *, slow: bool = False) -> None:
+    def move_to(self, depth_m: float, *, slow: bool = False, pace: float = 1.0) -> None:
+        """Run to `depth_m` at `pace` of the nominal duty (the approach duty if `slow`)."""
         if self._closed:
             raise WinchFault("the GPIO winch is closed")
         if self._distrust is not None:
@@ -191,12 +192,18 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
                 "winch not homed: the limit switch has not closed since start-up; "
                 "haul the probe up by hand or run `cc-daemon winch home`"
             )
-        self._begin(min(max(depth_m, 0.0), self.max_line_m), slow=slow)
+        pace = APPROACH_FRACTION if slow else min(max(pace, APPROACH_FRACTION), 1.0)
+        self._begin(min(max(depth_m, 0.0), self.max_line_m), pace=pace)
 
     def move_slowly_to(self, depth_m: float) -> None:
         """`move_to` at the approach duty for the whole motion (core.winch.status's
         ApproachSpeed): a blind cast pays out with the bed anywhere below."""
         self.move_to(depth_m, slow=True)
+
+    def move_at_most(self, depth_m: float, speed_m_s: float) -> None:
+        """`move_to` no faster than `speed_m_s`, and no slower than the approach duty
+        (core.winch.status's LimitedSpeed): the duty scaled as line_speed_m_s is."""
+        self.move_to(depth_m, pace=speed_m_s / self._cfg.line_speed_m_s)
 
     def stop(self) -> None:
         self._halt()
@@ -300,7 +307,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
 
     # ------------------------------------------------------------ starting a motion
 
-    def _begin(self, target_m: float, *, homing: bool = False, slow: bool = False) -> None:
+    def _begin(self, target_m: float, *, homing: bool = False, pace: float = 1.0) -> None:
         self._halt()
         self._fault = None
         self._changed.set()
@@ -326,10 +333,10 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             self._goal = Goal.TARGET
             self._target_count = min(target, self._max_count)
         direction = Direction.PAY_OUT if target > count else Direction.HAUL_IN
-        self._start_motor(direction, None, homing=False, slow=slow)
+        self._start_motor(direction, None, homing=False, pace=pace)
 
     def _start_motor(
-        self, direction: Direction, duty: float | None, *, homing: bool, slow: bool = False
+        self, direction: Direction, duty: float | None, *, homing: bool, pace: float = 1.0
     ) -> None:
         cfg = self._cfg
         self._pending = None
@@ -340,7 +347,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             # that the zero check below can judge the sensor (one stuck at its top would
             # otherwise pass unseen and stop every move as an overcurrent).
             start = functools.partial(
-                self._start_pending, direction, duty, homing, slow, self.switch_closed
+                self._start_pending, direction, duty, homing, pace, self.switch_closed
             )
             self._pending = self._loop.call_later(ZERO_SETTLE_S - off_for, start)
             self._changed.set()
@@ -350,7 +357,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         now = self._clock.monotonic()
         nominal = cfg.payout_duty if direction is Direction.PAY_OUT else cfg.haulin_duty
         self._approach_duty = nominal * APPROACH_FRACTION  # a slow motion's whole duty
-        self._duty = self._approach_duty if slow else (duty or nominal)
+        self._duty = duty or nominal * pace
         deadline = None
         if self._goal is Goal.HOME:
             # Line out / haul speed + margin; from an unknown position (start-up
@@ -387,7 +394,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self._schedule_tick()
 
     def _start_pending(
-        self, direction: Direction, duty: float | None, homing: bool, slow: bool, closed: bool
+        self, direction: Direction, duty: float | None, homing: bool, pace: float, closed: bool
     ) -> None:
         """A start that waited for the zero. A haul in does not start if the switch
         closed meanwhile (`closed`: as it was when the start was asked for): its edge
@@ -404,7 +411,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
                 self._goal = None
             return
         try:
-            self._start_motor(direction, duty, homing=homing, slow=slow)
+            self._start_motor(direction, duty, homing=homing, pace=pace)
         except Exception as exc:  # the caller that asked has returned: no one else hears
             self._fail(f"the motor could not be started: {type(exc).__name__}: {exc}")
 
