@@ -82,11 +82,15 @@ def test_the_command_names_every_product_and_why_schmidt_is_missing(
     )  # fmt: skip
     assert f"wrote {out / 'profiles.nc'}: 8 profiles (4 casts, down and up) on " in said
     schmidt = [line for line in said.splitlines() if line.startswith("Schmidt stability")]
-    assert schmidt == [
+    assert len(schmidt) == 1
+    assert schmidt[0].startswith(
         "Schmidt stability: missing (an empty cell, flagged no_hypsography): it needs the "
-        "lake's hypsography; give --hypsography FILE (a depth_m,area_m2,volume_m3 table, as "
-        "`cc-daemon map` writes it)"
-    ]
+        "lake's hypsography, and the survey's own soundings could not make one ("
+    )
+    assert schmidt[0].endswith(
+        "); give --hypsography FILE (a depth_m,area_m2,volume_m3 table, as `cc-daemon map` "
+        "writes it)"
+    )
 
 
 def test_the_netcdf_is_cf_profiles_the_checker_passes(
@@ -313,3 +317,28 @@ def test_a_lag_correction_of_none_is_the_sensors_as_read(
     assert math.isfinite(float(raw["thermocline [m]"]))
     line = (tmp_path / "o" / "profiles.csv").read_text().splitlines()[0]
     assert "sensor lags not corrected" in line
+
+
+def test_the_surveys_own_soundings_give_its_hypsography(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Without --hypsography, the survey's soundings are mapped as `cc-daemon map` maps
+    them, and Schmidt stability reads that lake (docs/profiles.md)."""
+    pytest.importorskip("scipy")
+    from cc_daemon.cli.profiles import _survey_lake
+    from cc_daemon.export.bathymap import survey_hypsography
+    from cc_daemon.store import JournalReader
+    from tests.bathykit import lines_journal
+
+    db = tmp_path / "lines.db"
+    lines_journal(db)
+    with JournalReader(db) as reader:
+        reader.select_survey("latest")
+        casts = reader.casts()
+        survey = reader.survey
+    lake, why = _survey_lake(db, survey, casts)
+    assert why == "" and lake is not None
+    mapped, _ = survey_hypsography(db, casts[0].session_id or 0)
+    assert mapped is not None and np.array_equal(lake.area_m2, mapped.area_m2)
+    assert lake.area_m2[0] > 0 and lake.volume_m3[0] > 0
+    assert "from the hypsography of this survey's own soundings" in capsys.readouterr().err

@@ -30,12 +30,14 @@ from cc_daemon.store import JournalReader, StoreError
 
 if TYPE_CHECKING:
     from cc_daemon.export.profiles.survey import Survey
+    from cc_daemon.science.hypsography import Hypsography
+    from cc_daemon.store import CastRecord
 
 EXIT_PROBLEM, EXIT_USAGE = 1, 2
 SCHMIDT_MISSING = (
     "Schmidt stability: missing (an empty cell, flagged no_hypsography): it needs the "
-    "lake's hypsography; give --hypsography FILE (a depth_m,area_m2,volume_m3 table, as "
-    "`cc-daemon map` writes it)"
+    "lake's hypsography, and the survey's own soundings could not make one ({why}); give "
+    "--hypsography FILE (a depth_m,area_m2,volume_m3 table, as `cc-daemon map` writes it)"
 )
 
 
@@ -118,12 +120,15 @@ def _run(args: argparse.Namespace) -> int:
     except ImportError as exc:  # numpy: the science extra
         raise OptionalDependencyError("profiles", "numpy", "science") from exc
     lake = read_hypsography(args.hypsography) if args.hypsography is not None else None
+    why = ""
     db = journal_path(args)
     with JournalReader(db) as reader:
         choose_survey(reader, None if args.cast is not None else args.survey, "profiles")
         casts = reader.casts(cast_id=args.cast)
         if args.cast is not None and not casts:
             raise StoreError(f"no cast {args.cast} in {db}")
+        if lake is None:
+            lake, why = _survey_lake(db, reader.survey, casts)
         survey = profile_survey(
             casts,
             reader.sonde_samples(cast_id=args.cast),
@@ -137,12 +142,33 @@ def _run(args: argparse.Namespace) -> int:
     args.output.mkdir(parents=True, exist_ok=True)
     problems = _tables(survey, args.output)
     if lake is None:
-        _say(SCHMIDT_MISSING)
+        _say(SCHMIDT_MISSING.format(why=why))
     elif lake.covered_fraction < 1.0:
         _say(f"note: the hypsography covers {lake.covered_fraction:.0%} of the lake")
     if not args.no_plots:
         problems += _plots(survey, args.output)
     return EXIT_PROBLEM if problems else 0
+
+
+def _survey_lake(
+    db: Path, survey: int | None, casts: list[CastRecord]
+) -> tuple[Hypsography | None, str]:
+    """The hypsography the survey's own soundings make, as `cc-daemon map` would map
+    them (its defaults), said in one line; (None, why) when they make none."""
+    sessions = {c.session_id for c in casts if c.session_id is not None}
+    if survey is None and len(sessions) != 1:
+        return None, "the casts span more than one survey"
+    try:
+        from cc_daemon.export.bathymap import survey_hypsography
+    except ImportError:  # scipy, pyproj: the science extra
+        return None, "the map's libraries are not installed (the 'science' extra)"
+    lake, why = survey_hypsography(db, survey if survey is not None else sessions.pop())
+    if lake is not None:
+        _say(
+            "Schmidt stability: from the hypsography of this survey's own soundings, as"
+            " `cc-daemon map` maps them (--hypsography FILE gives another)"
+        )
+    return lake, why
 
 
 def _tables(survey: Survey, out: Path) -> int:
