@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import subprocess
 import sys
 import warnings
@@ -254,6 +255,15 @@ def test_survey_hypsography_for_schmidt_stability(survey: tuple[Path, Any], tmp_
     lines_journal(empty, lines=1, line_length_m=3.0)  # a handful of soundings on one line
     none, why = survey_hypsography(empty, 1)
     assert none is None and why
+    sketch = tmp_path / "sketch.db"
+    lines_journal(sketch, lines=2, line_length_m=60.0)  # mapped, its accuracy not estimated
+    with JournalReader(sketch) as reader:
+        chosen = reader.select_survey(1)
+        assert chosen is not None
+        made = make_map(reader, chosen, MapOptions())
+    assert made.bed.hypsography is not None and math.isnan(made.bed.cv.rmse_m)
+    none, why = survey_hypsography(sketch, 1)
+    assert none is None and "too little of the lake to trust" in why
 
 
 def test_readings_are_placed_only_between_fixes_of_their_own_session(tmp_path: Path) -> None:

@@ -13,6 +13,7 @@ It reads the journal only through `JournalReader`, and never writes.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -109,7 +110,9 @@ def survey_hypsography(
     db: Path, survey: int, *, options: MapOptions | None = None
 ) -> tuple[Hypsography | None, str]:
     """Survey `survey`'s hypsography from journal `db`, mapped as `cc-daemon map` maps
-    it; (None, why) when it cannot be made (no such survey, no soundings, none mapped)."""
+    it; (None, why) when it cannot be made (no such survey, no soundings, none mapped)
+    or cannot be trusted: a map whose accuracy could not be estimated (a few lines
+    between stations) is a sketch, and Schmidt stability read from it would overstate."""
     from cc_daemon.store import StoreError
 
     try:
@@ -122,4 +125,9 @@ def survey_hypsography(
         return None, str(exc)
     if made.bed.hypsography is None:
         return None, f"survey {survey}: no cell of the grid was mapped"
+    if math.isnan(made.bed.cv.rmse_m):
+        return None, (
+            f"survey {survey}: its soundings map too little of the lake to trust (the map's"
+            f" accuracy could not be estimated: {made.bed.cv.predicted} held-out blocks)"
+        )
     return made.bed.hypsography, ""
