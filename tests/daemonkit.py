@@ -26,6 +26,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
+import pytest
+
 from cc_daemon.core.protocol import Message, ProbePosition, ProbePositionRequest, StartMeasuring
 from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
@@ -35,6 +37,11 @@ REPO = Path(__file__).resolve().parent.parent
 # How long a test waits for something that should happen: far beyond what any load
 # makes of it (a wait returns as soon as the event comes, so it costs nothing).
 WAIT_S = 30.0
+# How long a daemon process may take to start (to answer, or to exit on a bad
+# setting): its imports alone took 10 to 25 s on 2 cores at a load average of 25.
+# Tests that start one carry a per-test timeout to match (`SLOW_TIMEOUT`).
+START_S = 60.0
+SLOW_TIMEOUT = pytest.mark.timeout(240)
 
 T = TypeVar("T")
 
@@ -188,13 +195,13 @@ class DaemonProcess:
         self.port = await FramePort.over_fd(self.pty.master_fd)
         return self.port
 
-    async def start_and_connect(self, timeout: float = WAIT_S) -> FramePort:
+    async def start_and_connect(self, timeout: float = START_S) -> FramePort:
         self.start()
         port = await self.connect()
         await self.wait_answering(timeout)
         return port
 
-    async def wait_answering(self, timeout: float = WAIT_S) -> None:
+    async def wait_answering(self, timeout: float = START_S) -> None:
         """Ask S until the daemon answers R-P."""
         assert self.port is not None
         deadline = time.monotonic() + timeout
@@ -243,7 +250,7 @@ class DaemonProcess:
         assert self.proc is not None
         self.proc.send_signal(signum)
 
-    async def wait_exit(self, timeout: float = WAIT_S) -> int:
+    async def wait_exit(self, timeout: float = START_S) -> int:
         assert self.proc is not None
         deadline = time.monotonic() + timeout
         while self.proc.poll() is None:
