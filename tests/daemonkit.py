@@ -89,6 +89,18 @@ async def collect_until(
     raise AssertionError(f"not within {timeout:g} s; got {[r.message for r in out]}")
 
 
+def nth(kind: type[Message], n: int) -> Callable[[Message], bool]:
+    """For `collect_until`: true at the `n`th frame of `kind`."""
+    seen = 0
+
+    def counted(message: Message) -> bool:
+        nonlocal seen
+        seen += type(message) is kind
+        return seen >= n
+
+    return counted
+
+
 async def frames_before_reply(
     port: FramePort, timestamp: int = 40_000, timeout: float = WAIT_S
 ) -> list[Message]:

@@ -34,6 +34,7 @@ from tests.daemonkit import (
     DaemonProcess,
     collect_until,
     frames_before_reply,
+    nth,
     station,
 )
 
@@ -155,16 +156,9 @@ async def test_m_resent_every_half_second_makes_exactly_one_cast(make_daemon: Ma
             await port.send(station())
             await asyncio.sleep(0.5)
 
-    finished = 0
-
-    def seventh_r_f(message: Message) -> bool:  # the cast's own, and six for Ms after it
-        nonlocal finished
-        finished += isinstance(message, Finished)
-        return finished == 7
-
     sender = asyncio.create_task(resend_m())
-    try:
-        received = await collect_until(port, seventh_r_f)
+    try:  # the cast's own R-F, and six for Ms after it
+        received = await collect_until(port, nth(Finished, 7))
     finally:
         sender.cancel()
         with contextlib.suppress(asyncio.CancelledError):
@@ -294,14 +288,7 @@ async def test_a_stranded_probe_is_reported_loudly_and_never_finished(
     await port.send(station())
     await daemon.expect(Ack)
     # 2 s down, 1 s dwell, the ascent jams at 0.5 m, the retry jams again: stranded.
-    fault_reports = 0
-
-    def third_r_l(message: Message) -> bool:
-        nonlocal fault_reports
-        fault_reports += isinstance(message, FaultReport)
-        return fault_reports == 3
-
-    frames = await collect_until(port, third_r_l)
+    frames = await collect_until(port, nth(FaultReport, 3))
     assert "R-F" not in kinds(frames)
     # Stranded: R-L (the fault, for the ground station) in place of R-M, with the
     # last known depth, every period.
