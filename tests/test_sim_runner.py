@@ -8,10 +8,11 @@ import contextlib
 import io
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
-import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -43,9 +44,9 @@ from cc_daemon.sim.options import (
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.runner import run_autopilot, run_simulation
 from cc_daemon.sim.session import Run
-from cc_daemon.sim.sonar_chain import SETTLE_S
 from cc_daemon.sim.summary import build_summary
 from cc_daemon.store import JournalReader
+from tests.daemonkit import SLOW_TIMEOUT, START_S, WAIT_S, until
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -64,9 +65,8 @@ QUICK = Pace(
 )
 
 
-async def _simulate(tmp_path: Path, **options: object) -> tuple[int, str, float]:
+async def _simulate(tmp_path: Path, **options: object) -> tuple[int, str]:
     out = io.StringIO()
-    started = time.monotonic()
     code = await run_simulation(
         SimOptions(
             db=tmp_path / "survey.db",
@@ -76,7 +76,7 @@ async def _simulate(tmp_path: Path, **options: object) -> tuple[int, str, float]
             **options,  # type: ignore[arg-type]
         )
     )
-    return code, out.getvalue(), time.monotonic() - started
+    return code, out.getvalue()
 
 
 def _casts(tmp_path: Path) -> list[tuple[str | None, float, float | None]]:
@@ -107,10 +107,11 @@ def test_the_demo_sends_one_frame_a_second_as_the_firmware_does() -> None:
 
 @pytest.mark.parametrize("firmware", ["ucm-2023", "manual"])
 async def test_a_two_station_survey_at_demo_pace(tmp_path: Path, firmware: str) -> None:
-    code, text, elapsed = await _simulate(tmp_path, stations=2, pace=FAST, firmware=firmware)
+    # (How long the demo takes is a figure of the README, measured: a test never
+    # times a run, which a busy machine stretches.)
+    code, text = await _simulate(tmp_path, stations=2, pace=FAST, firmware=firmware)
     assert code == 0, text
     # The 2023 firmware: T every 1.1 s and a stick jog at the deepest station first.
-    assert elapsed < (25 if firmware == "manual" else 40)
     assert "corrupt frames: 0 from the daemon, 0 rejected by the daemon" in text
     jogged = "S1: stick jog before the station: 1 P-D then 3 P-U frames (no reply expected)"
     assert (jogged in text) == (firmware == "ucm-2023")
@@ -133,7 +134,7 @@ async def test_a_two_station_survey_at_demo_pace(tmp_path: Path, firmware: str) 
 async def test_m_resent_throughout_the_cast_still_gives_one_cast_per_station(
     tmp_path: Path,
 ) -> None:
-    code, text, _ = await _simulate(tmp_path, stations=3, seed=4, pace=QUICK, resend_m=True)
+    code, text = await _simulate(tmp_path, stations=3, seed=4, pace=QUICK, resend_m=True)
     assert code == 0, text
     casts = _casts(tmp_path)
     assert [outcome for outcome, _, _ in casts] == ["completed", "skipped-shallow", "completed"]
@@ -142,7 +143,7 @@ async def test_m_resent_throughout_the_cast_still_gives_one_cast_per_station(
 
 
 async def test_a_winch_stall_aborts_and_the_probe_comes_home_before_r_f(tmp_path: Path) -> None:
-    code, text, _ = await _simulate(tmp_path, stations=2, pace=QUICK, winch_stall=True)
+    code, text = await _simulate(tmp_path, stations=2, pace=QUICK, winch_stall=True)
     assert code == 3, text  # the daemon did right, but the station was not measured
     assert text.endswith(
         "SURVEY INCOMPLETE: 0 of 1 castable station measured; the daemon kept the protocol "
@@ -166,7 +167,7 @@ async def test_a_pulled_cable_mid_cast_is_survived(tmp_path: Path) -> None:
         cast={"bottom_dwell_s": 0.5, "max_duration_s": 40.0, "target_depth_m": 2.0},
     )
     # Timed for the manual's autopilot (no stick jog before S1 to shift the cast).
-    code, text, _ = await _simulate(
+    code, text = await _simulate(
         tmp_path,
         stations=2,
         pace=slow_winch,
@@ -193,7 +194,7 @@ async def test_bit_flips_both_ways_are_counted_and_each_fault_they_cause_is_excu
     # Heavy noise: a dozen frames to the daemon spoilt in a few seconds, a few back.
     # The manual's autopilot, which resends M: the 2023 firmware sends M once and
     # waits for ever, so a spoilt M strands it (the daemon can only say so).
-    code, text, _ = await _simulate(
+    code, text = await _simulate(
         tmp_path, stations=2, pace=QUICK, corrupt=0.06, seed=7, firmware="manual"
     )
     assert code == 0, text
@@ -210,20 +211,37 @@ async def test_bit_flips_both_ways_are_counted_and_each_fault_they_cause_is_excu
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["completed", "skipped-shallow"]
 
 
-async def _survey_interrupted_at(tmp_path: Path, *seconds: float) -> tuple[int, str]:
-    """A 2-station survey with a slow winch, sent a real SIGINT at each of `seconds`
-    (mid-cast at S1); its exit status and plain output."""
+Moment = Callable[[str], bool]  # on the run's output so far: is it time?
+
+
+def said(text: str) -> Moment:
+    return lambda out: text in out
+
+
+def probe_down(depth_m: float) -> Moment:
+    """A depth report from at least `depth_m` down has arrived: the cast is running."""
+    reports = re.compile(r"← R-M t=\d+ depth (\d+\.\d+) m")
+    return lambda out: any(float(d) >= depth_m for d in reports.findall(out))
+
+
+async def _survey_interrupted_at(tmp_path: Path, *moments: Moment) -> tuple[int, str]:
+    """A 2-station survey with a slow winch, sent a real SIGINT at each of `moments`
+    in turn, as the run's output shows it; its exit status and plain output."""
     slow_winch = Pace("quick", 0.25, 300.0, 0.4, cast={"bottom_dwell_s": 5.0})
-    loop = asyncio.get_running_loop()
-    # The boat settles on station (SETTLE_S) before its M, so the cast starts that much later.
-    timers = [loop.call_later(t + SETTLE_S, os.kill, os.getpid(), signal.SIGINT) for t in seconds]
     out = io.StringIO()
+
+    async def interrupt() -> None:
+        for moment in moments:
+            await until(lambda m=moment: m(out.getvalue()), what="the moment to interrupt")
+            os.kill(os.getpid(), signal.SIGINT)
+
+    interrupter = asyncio.create_task(interrupt())
     try:
         code = await run_simulation(
             SimOptions(
                 stations=2,
                 pace=slow_winch,
-                firmware="manual",  # timed for a cast that starts on arrival (no stick jog)
+                firmware="manual",  # a cast that starts on arrival (no stick jog)
                 db=tmp_path / "survey.db",
                 live=False,
                 out=out,
@@ -231,15 +249,16 @@ async def _survey_interrupted_at(tmp_path: Path, *seconds: float) -> tuple[int, 
             )
         )
     finally:
-        for timer in timers:
-            timer.cancel()
+        interrupter.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await interrupter
     return code, out.getvalue()
 
 
 async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
     tmp_path: Path,
 ) -> None:
-    code, text = await _survey_interrupted_at(tmp_path, 3.0)
+    code, text = await _survey_interrupted_at(tmp_path, probe_down(0.5))
     assert code == 3, text
     assert "Ctrl-C: the daemon brings the probe home, then stops" in text
     assert "aborted: shutdown" in _row(text, "S1")
@@ -253,7 +272,7 @@ async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
 async def test_ctrl_c_before_any_cast_claims_nothing_about_bringing_the_probe_home(
     tmp_path: Path,
 ) -> None:
-    code, text = await _survey_interrupted_at(tmp_path, 0.3)  # still under way to S1
+    code, text = await _survey_interrupted_at(tmp_path, said("under way to S1"))
     assert code == 3, text
     assert "Ctrl-C: no cast running, the daemon stops" in text
     assert "interrupted before any cast: the probe never left home" in text
@@ -264,7 +283,11 @@ async def test_ctrl_c_before_any_cast_claims_nothing_about_bringing_the_probe_ho
 async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_be_down(
     tmp_path: Path,
 ) -> None:
-    code, text = await _survey_interrupted_at(tmp_path, 2.5, 3.0)
+    # The second once the first is heard (two pending at once would be one), with
+    # the probe 1.5 m down: nearly 4 s from home at 0.4 m/s.
+    code, text = await _survey_interrupted_at(
+        tmp_path, probe_down(1.5), said("Ctrl-C: the daemon brings the probe home")
+    )
     assert code == 130, text
     assert "second Ctrl-C: the daemon stops at once" in text
     assert "brought the probe home" not in text
@@ -288,7 +311,7 @@ async def test_a_probe_that_cannot_come_home_gets_no_r_f_and_fails_the_run(
         cast={"bottom_dwell_s": 0.5, "max_duration_s": 3.0, "target_depth_m": 2.0},
         finish_margin_s=3.0,
     )
-    code, text, _ = await _simulate(tmp_path, stations=2, pace=jamming, winch_fail_home=True)
+    code, text = await _simulate(tmp_path, stations=2, pace=jamming, winch_fail_home=True)
     # The stick's jog up jams at 0.5 m before M: the winch cannot vouch for home, so the
     # station is refused and held with R-L (the fault, for the ground station), never R-F.
     assert code == 4, text  # the survey halted: its own exit status
@@ -395,7 +418,7 @@ async def test_simulate_autopilot_on_a_serial_port_against_a_daemon(tmp_path: Pa
         daemon = Daemon(settings)
         daemon_task = asyncio.create_task(daemon.run())
         try:
-            await asyncio.wait_for(daemon.ready.wait(), 10)
+            await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
             out = io.StringIO()
             code = await run_autopilot(
                 AutopilotOnlyOptions(
@@ -410,7 +433,7 @@ async def test_simulate_autopilot_on_a_serial_port_against_a_daemon(tmp_path: Pa
             )
         finally:
             daemon.request_shutdown()
-            await asyncio.wait_for(daemon_task, 10)
+            await asyncio.wait_for(daemon_task, WAIT_S)
             loop.remove_reader(pi_end.master_fd)
             loop.remove_reader(laptop_end.master_fd)
     text = out.getvalue()
@@ -566,6 +589,7 @@ def test_the_log_tap_has_no_finaliser_to_trip_over_a_closed_file(tmp_path: Path)
 # ---------------------------------------------------------------- output cut short
 
 
+@SLOW_TIMEOUT
 def test_a_reader_that_leaves_mid_cast_does_not_strand_the_probe(tmp_path: Path) -> None:
     """`cc-daemon --simulate | head`: the output stops, the survey does not."""
     db = tmp_path / "pipe.db"
@@ -589,7 +613,7 @@ def test_a_reader_that_leaves_mid_cast_does_not_strand_the_probe(tmp_path: Path)
                     break  # the probe is going down: the reader leaves
             proc.stdout.close()
             err = proc.stderr.read().decode()
-            code = proc.wait(timeout=45)
+            code = proc.wait(timeout=START_S + WAIT_S)
         finally:
             if proc.poll() is None:
                 proc.kill()
@@ -599,7 +623,9 @@ def test_a_reader_that_leaves_mid_cast_does_not_strand_the_probe(tmp_path: Path)
     log = db.with_suffix(".log").read_text()
     assert "probe may be down" not in log
     assert "cast finished: probe home, R-F sent" in log
-    events = [json.loads(line)["event"] for line in log.splitlines()]
+    # The daemon's own events: dev mode also has asyncio log each callback a busy
+    # machine made slow ("Executing <Task ...> took 0.379 seconds").
+    events = [e["event"] for e in map(json.loads, log.splitlines()) if e["logger"] != "asyncio"]
     assert events[-1] == "cc-daemon stopped"
     with JournalReader(db) as reader:
         assert [c.outcome for c in reader.casts()] == ["completed"]
@@ -628,7 +654,7 @@ async def test_a_switch_stuck_closed_on_the_mock_drum_halts_the_survey_honestly(
     gpio_mock, quick = gpio_mock_pace(
         {"bottom_dwell_s": 0.5, "max_duration_s": 3.0, "target_depth_m": 2.0}, 3.0
     )
-    code, text, _ = await _simulate(
+    code, text = await _simulate(
         tmp_path, stations=2, pace=quick, settings=gpio_mock, winch_fault="switch-stuck"
     )
     assert code == 4, text  # main's stranded survey: SURVEY HALTED, exit status 4
