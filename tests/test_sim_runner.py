@@ -12,15 +12,17 @@ import re
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from cc_daemon.config import Settings
+from cc_daemon.core.protocol import DepthReport, ErrorKind, Finished, encode
 from cc_daemon.daemon.service import Daemon
 from cc_daemon.sim import mission as mission_module
-from cc_daemon.sim.autopilot import Autopilot
+from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig
 from cc_daemon.sim.commands import (
     EXIT_USAGE,
     add_commands,
@@ -45,6 +47,7 @@ from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.runner import run_autopilot, run_simulation
 from cc_daemon.sim.session import Run
 from cc_daemon.sim.summary import build_summary
+from cc_daemon.sim.violations import BITS_FLIPPED, ViolationKind
 from cc_daemon.store import JournalReader
 from tests.daemonkit import SLOW_TIMEOUT, START_S, WAIT_S, until
 
@@ -209,6 +212,66 @@ async def test_bit_flips_both_ways_are_counted_and_each_fault_they_cause_is_excu
     assert "excused: " in text
     assert "corrupt frame (bits flipped by --corrupt)" in text
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["completed", "skipped-shallow"]
+
+
+class FlipAt:
+    """Line noise at chosen bytes of the stream (offset -> bits), as the simulator's
+    `BitFlipper` does it: each flip timed with the clock, inside the port's read."""
+
+    def __init__(self, flips: dict[int, int]) -> None:
+        self.flips = flips
+        self.bytes_seen = 0
+        self.flip_times: list[float] = []
+
+    def __call__(self, data: bytes) -> bytes:
+        out = bytearray(data)
+        for offset, bits in self.flips.items():
+            if self.bytes_seen <= offset < self.bytes_seen + len(data):
+                out[offset - self.bytes_seen] ^= bits
+                self.flip_times.append(time.monotonic())
+        self.bytes_seen += len(data)
+        return bytes(out)
+
+
+@pytest.mark.parametrize("case", ["a good frame then a spoilt one in one read", "a cascade"])
+async def test_every_corrupt_frame_a_flip_made_is_excused(tmp_path: Path, case: str) -> None:
+    # Found under load (issue 31), a run judged PROTOCOL VIOLATED by its own noise. A
+    # flip is timed inside the read, a moment before the read's frames are: a frame
+    # spoilt after a good one in the same read had a window (from that good frame to
+    # now) that missed the flip. And one flip that made an R-M's checksum byte 0x52
+    # ('R') spoilt two frames: the R-M, then "52 52" with the next frame's sync byte,
+    # as the parser read on through it; the second's window opened after the flip.
+    if case == "a cascade":
+        first = encode(DepthReport(4, 47))  # its checksum byte is 0xD2: flipped, 0x52
+        writes = [first, encode(Finished(4, 0))]
+        flips = {len(first) - 1: 0x80}
+        corrupt = [ErrorKind.BAD_CHECKSUM, ErrorKind.UNKNOWN_TYPE]
+    else:
+        writes = [b"\x00", encode(DepthReport(4, 47)) + encode(DepthReport(5, 48))]
+        flips = {12: 0x01}  # in the second R-M of the second read
+        corrupt = [ErrorKind.BAD_CHECKSUM]
+    mission = make_mission(2, 1)
+    autopilot = Autopilot(mission, AutopilotConfig(boat_speed_m_s=300.0))
+    console = SimConsole(io.StringIO(), live=False)
+    with PtyPair(tmp_path / "tty") as pair:
+        run = Run(mission, autopilot, console, pair=pair, flip_in=FlipAt(flips))  # type: ignore[arg-type]
+        await run.attach_pty()
+        port = run.port
+        assert port is not None
+        slave = os.open(pair.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            written = 0
+            for data in writes:  # one read each: the next is written once it is read
+                os.write(slave, data)
+                written += len(data)
+                await until(lambda n=written: port.bytes_in == n, what="the write read")
+            await run.collect()  # as the run takes them: flips, errors, frames
+        finally:
+            os.close(slave)
+            await run.close()
+    assert [e.kind for e in port.errors] == corrupt
+    judged = [v for v in autopilot.violations if v.kind is ViolationKind.CORRUPT_FRAME]
+    assert [v.excused_by for v in judged] == [BITS_FLIPPED] * len(corrupt)
 
 
 Moment = Callable[[str], bool]  # on the run's output so far: is it time?
