@@ -21,12 +21,12 @@ from cc_daemon.core.protocol import (
     DepthReport,
     FaultReport,
     Finished,
+    Message,
     ProbePosition,
     ProbePositionRequest,
     Telemetry,
     encode,
 )
-from cc_daemon.core.protocol.messages import Message
 from cc_daemon.sim.port import FramePort, Received
 from tests.daemonkit import (
     SLOW_TIMEOUT,
