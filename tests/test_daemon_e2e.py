@@ -336,7 +336,14 @@ async def test_the_gpio_winch_without_gpio_pins_exits_saying_why(make_daemon: Ma
 
 
 async def test_a_whole_cast_on_the_gpio_winch_with_mock_pins(make_daemon: MakeDaemon) -> None:
-    gpio = {"pin_factory": "mock", "line_speed_m_s": 2.0, "stall_timeout_s": 1.0}
+    # No fault is wanted here: the stall and loop watchdogs get times a loaded
+    # machine's pauses never reach (they cost nothing when nothing stalls).
+    gpio = {
+        "pin_factory": "mock",
+        "line_speed_m_s": 2.0,
+        "stall_timeout_s": 5.0,
+        "loop_watchdog_s": 5.0,
+    }
     daemon = make_daemon({"winch": {"backend": "gpio", "gpio": gpio}})
     await daemon.start_and_connect()
     await daemon.port.send(station())  # type: ignore[union-attr]

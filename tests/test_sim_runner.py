@@ -698,7 +698,9 @@ def gpio_mock_pace(cast: dict[str, float], finish_margin_s: float) -> tuple[Sett
     """The GPIO winch on mock pins, and a quick pace with this cast: a winch fault's
     survey in a few seconds."""
     gpio_mock = Settings.model_validate(
-        {"winch": {"backend": "gpio", "gpio": {"pin_factory": "mock"}}}
+        # The loop watchdog at its longest: a loaded machine's pause is not the fault
+        # under test (the stall it would report would change the survey's verdict).
+        {"winch": {"backend": "gpio", "gpio": {"pin_factory": "mock", "loop_watchdog_s": 5.0}}}
     )
     quick = Pace(
         "quick",
