@@ -108,6 +108,7 @@ def test_the_demo_sends_one_frame_a_second_as_the_firmware_does() -> None:
     assert REALTIME.frame_period_s == 1.0
 
 
+@SLOW_TIMEOUT  # a 30 s survey on real time: longer on a loaded machine
 @pytest.mark.parametrize("firmware", ["ucm-2023", "manual"])
 async def test_a_two_station_survey_at_demo_pace(tmp_path: Path, firmware: str) -> None:
     # (How long the demo takes is a figure of the README, measured: a test never
