@@ -68,8 +68,11 @@ QUICK = Pace(
 )
 
 
-async def _simulate(tmp_path: Path, **options: object) -> tuple[int, str]:
+async def _simulate(tmp_path: Path, **options: object) -> tuple[int, str, float]:
+    """Its exit status, its plain output and how long it took (for a figure, never a
+    test's verdict: a busy machine stretches a run)."""
     out = io.StringIO()
+    started = time.monotonic()
     code = await run_simulation(
         SimOptions(
             db=tmp_path / "survey.db",
@@ -79,7 +82,7 @@ async def _simulate(tmp_path: Path, **options: object) -> tuple[int, str]:
             **options,  # type: ignore[arg-type]
         )
     )
-    return code, out.getvalue()
+    return code, out.getvalue(), time.monotonic() - started
 
 
 def _casts(tmp_path: Path) -> list[tuple[str | None, float, float | None]]:
@@ -113,7 +116,7 @@ def test_the_demo_sends_one_frame_a_second_as_the_firmware_does() -> None:
 async def test_a_two_station_survey_at_demo_pace(tmp_path: Path, firmware: str) -> None:
     # (How long the demo takes is a figure of the README, measured: a test never
     # times a run, which a busy machine stretches.)
-    code, text = await _simulate(tmp_path, stations=2, pace=FAST, firmware=firmware)
+    code, text, _ = await _simulate(tmp_path, stations=2, pace=FAST, firmware=firmware)
     assert code == 0, text
     # The 2023 firmware: T every 1.1 s and a stick jog at the deepest station first.
     assert "corrupt frames: 0 from the daemon, 0 rejected by the daemon" in text
@@ -138,7 +141,7 @@ async def test_a_two_station_survey_at_demo_pace(tmp_path: Path, firmware: str) 
 async def test_m_resent_throughout_the_cast_still_gives_one_cast_per_station(
     tmp_path: Path,
 ) -> None:
-    code, text = await _simulate(tmp_path, stations=3, seed=4, pace=QUICK, resend_m=True)
+    code, text, _ = await _simulate(tmp_path, stations=3, seed=4, pace=QUICK, resend_m=True)
     assert code == 0, text
     casts = _casts(tmp_path)
     assert [outcome for outcome, _, _ in casts] == ["completed", "skipped-shallow", "completed"]
@@ -147,7 +150,7 @@ async def test_m_resent_throughout_the_cast_still_gives_one_cast_per_station(
 
 
 async def test_a_winch_stall_aborts_and_the_probe_comes_home_before_r_f(tmp_path: Path) -> None:
-    code, text = await _simulate(tmp_path, stations=2, pace=QUICK, winch_stall=True)
+    code, text, _ = await _simulate(tmp_path, stations=2, pace=QUICK, winch_stall=True)
     assert code == 3, text  # the daemon did right, but the station was not measured
     assert text.endswith(
         "SURVEY INCOMPLETE: 0 of 1 castable station measured; the daemon kept the protocol "
@@ -171,7 +174,7 @@ async def test_a_pulled_cable_mid_cast_is_survived(tmp_path: Path) -> None:
         cast={"bottom_dwell_s": 0.5, "max_duration_s": 40.0, "target_depth_m": 2.0},
     )
     # Timed for the manual's autopilot (no stick jog before S1 to shift the cast).
-    code, text = await _simulate(
+    code, text, _ = await _simulate(
         tmp_path,
         stations=2,
         pace=slow_winch,
@@ -198,7 +201,7 @@ async def test_bit_flips_both_ways_are_counted_and_each_fault_they_cause_is_excu
     # Heavy noise: a dozen frames to the daemon spoilt in a few seconds, a few back.
     # The manual's autopilot, which resends M: the 2023 firmware sends M once and
     # waits for ever, so a spoilt M strands it (the daemon can only say so).
-    code, text = await _simulate(
+    code, text, _ = await _simulate(
         tmp_path, stations=2, pace=QUICK, corrupt=0.06, seed=7, firmware="manual"
     )
     assert code == 0, text
@@ -375,7 +378,7 @@ async def test_a_probe_that_cannot_come_home_gets_no_r_f_and_fails_the_run(
         cast={"bottom_dwell_s": 0.5, "max_duration_s": 3.0, "target_depth_m": 2.0},
         finish_margin_s=3.0,
     )
-    code, text = await _simulate(tmp_path, stations=2, pace=jamming, winch_fail_home=True)
+    code, text, _ = await _simulate(tmp_path, stations=2, pace=jamming, winch_fail_home=True)
     # The stick's jog up jams at 0.5 m before M: the winch cannot vouch for home, so the
     # station is refused and held with R-L (the fault, for the ground station), never R-F.
     assert code == 4, text  # the survey halted: its own exit status
@@ -720,7 +723,7 @@ async def test_a_switch_stuck_closed_on_the_mock_drum_halts_the_survey_honestly(
     gpio_mock, quick = gpio_mock_pace(
         {"bottom_dwell_s": 0.5, "max_duration_s": 3.0, "target_depth_m": 2.0}, 3.0
     )
-    code, text = await _simulate(
+    code, text, _ = await _simulate(
         tmp_path, stations=2, pace=quick, settings=gpio_mock, winch_fault="switch-stuck"
     )
     assert code == 4, text  # main's stranded survey: SURVEY HALTED, exit status 4
