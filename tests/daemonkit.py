@@ -5,12 +5,12 @@ The test is the autopilot: it holds the pty master through the simulator's
 as its serial port, a TOML config file, its own journal file, and logs JSON
 lines to a file the test can read.
 
-A test waits on the event it checks, never on a sleep: `until` polls a condition,
-`expect` and `collect_until` take frames until the one wanted, each with a deadline
-(`WAIT_S`) that only a broken daemon reaches and that costs nothing when the event
-comes. That something does NOT happen is shown by an event that proves the moment
-has passed (`frames_before_reply`: the answer to a later frame has arrived, so an
-answer to an earlier one would have come first).
+A test waits on the event it checks, never on a sleep (`tests/waitkit.py` polls a
+condition): `expect`, `next_frame` and `collect_until` take frames until the one
+wanted, each with a deadline (`WAIT_S`) that only a broken daemon reaches and that
+costs nothing when the event comes. That something does NOT happen is shown by an
+event that proves the moment has passed (`frames_before_reply`: the answer to a
+later frame has arrived, so an answer to an earlier one would have come first).
 """
 
 from __future__ import annotations
@@ -24,9 +24,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
-
-import pytest
+from typing import Any
 
 from cc_daemon.core.protocol import Message, ProbePosition, ProbePositionRequest, StartMeasuring
 from cc_daemon.sim.port import FramePort, Received
@@ -39,24 +37,7 @@ REPO = Path(__file__).resolve().parent.parent
 WAIT_S = 30.0
 # How long a daemon process may take to start (to answer, or to exit on a bad
 # setting): its imports alone took 10 to 25 s on 2 cores at a load average of 25.
-# Tests that start one carry a per-test timeout to match (`SLOW_TIMEOUT`).
 START_S = 60.0
-SLOW_TIMEOUT = pytest.mark.timeout(240)
-
-T = TypeVar("T")
-
-
-async def until(
-    check: Callable[[], T], timeout: float = WAIT_S, *, what: str = "", every: float = 0.02
-) -> T:
-    """`check()`'s first truthy value, polled on the event loop; AssertionError (naming
-    `what`) if it stays falsy for `timeout` seconds."""
-    deadline = time.monotonic() + timeout
-    while not (value := check()):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"not within {timeout:g} s: {what or check}")
-        await asyncio.sleep(every)
-    return value
 
 
 async def next_frame(
@@ -277,10 +258,12 @@ class DaemonProcess:
     async def logged(self, event: str, timeout: float = WAIT_S) -> dict[str, Any]:
         """The first log event whose text contains `event`, once the daemon has written it."""
 
+        from tests.waitkit import until  # (waitkit imports this module)
+
         def find() -> dict[str, Any] | None:
             return next((e for e in self.log_events() if event in str(e.get("event"))), None)
 
-        found = await until(find, timeout, what=f"log event {event!r}", every=0.05)
+        found = await until(find, f"log event {event!r}", timeout)
         assert found is not None
         return found
 

@@ -29,7 +29,6 @@ from cc_daemon.core.protocol import (
 )
 from cc_daemon.sim.port import FramePort, Received
 from tests.daemonkit import (
-    SLOW_TIMEOUT,
     WAIT_S,
     DaemonProcess,
     collect_until,
@@ -38,7 +37,7 @@ from tests.daemonkit import (
     station,
 )
 
-pytestmark = [pytest.mark.slow, SLOW_TIMEOUT]
+pytestmark = pytest.mark.slow
 MakeDaemon = Callable[..., DaemonProcess]
 
 

@@ -43,9 +43,9 @@ from tests.daemonkit import (
     merge,
     next_frame,
     station,
-    until,
 )
 from tests.test_firmware_frames import M_26
+from tests.waitkit import until
 
 
 class Rig(NamedTuple):

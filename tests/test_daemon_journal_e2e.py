@@ -18,10 +18,11 @@ from pathlib import Path
 import pytest
 
 from cc_daemon.core.protocol import Ack, DepthReport, Finished, ProbePosition, ProbePositionRequest
-from tests.daemonkit import SLOW_TIMEOUT, DaemonProcess, collect_until, station, until
+from tests.daemonkit import DaemonProcess, collect_until, station
 from tests.test_journal_faults import read_only
+from tests.waitkit import until
 
-pytestmark = [pytest.mark.slow, SLOW_TIMEOUT]
+pytestmark = pytest.mark.slow
 MakeDaemon = Callable[..., DaemonProcess]
 
 # "Nothing older than a second is lost": a row is durable about a millisecond after

@@ -16,9 +16,9 @@ import pytest
 from cc_daemon.sim.options import AutopilotOnlyOptions
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.runner import run_autopilot
-from tests.daemonkit import SLOW_TIMEOUT, START_S, DaemonProcess
+from tests.daemonkit import START_S, DaemonProcess
 
-pytestmark = [pytest.mark.slow, SLOW_TIMEOUT]
+pytestmark = pytest.mark.slow
 MakeDaemon = Callable[..., DaemonProcess]
 
 

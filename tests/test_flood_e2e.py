@@ -13,9 +13,9 @@ from collections.abc import Callable
 import pytest
 
 from cc_daemon.core.protocol import ProbePosition, ProbePositionRequest, Telemetry, encode
-from tests.daemonkit import SLOW_TIMEOUT, DaemonProcess
+from tests.daemonkit import DaemonProcess
 
-pytestmark = [pytest.mark.slow, SLOW_TIMEOUT]
+pytestmark = pytest.mark.slow
 MakeDaemon = Callable[..., DaemonProcess]
 
 

@@ -17,7 +17,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.daemonkit import REPO, SLOW_TIMEOUT, DaemonProcess, until
+from tests.daemonkit import REPO, DaemonProcess
+from tests.waitkit import until
 
 HELPER = Path(__file__).with_name("modules_at_exit.py")
 
@@ -71,7 +72,6 @@ async def _settled(pid: int, quiet_s: float = 0.3) -> bool:
     return voluntary_switches(pid) == before
 
 
-@SLOW_TIMEOUT
 async def test_the_daemon_imports_nothing_it_does_not_use_and_sleeps_when_idle(tmp_path):
     daemon = DaemonProcess(tmp_path)
     dump = tmp_path / "modules.txt"

@@ -14,7 +14,8 @@ from cc_daemon.daemon.quiet_port import QuietPort
 from cc_daemon.daemon.service import Daemon
 from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.sim.pty import PtyPair
-from tests.daemonkit import WAIT_S, until
+from tests.daemonkit import WAIT_S
+from tests.waitkit import until
 
 
 def test_silence_is_said_after_first_s_then_at_doubling_intervals() -> None:

@@ -14,10 +14,11 @@ import sqlite3
 import pytest
 
 from cc_daemon.core.protocol import Ack, DepthReport, FaultReport, Finished
-from tests.daemonkit import SLOW_TIMEOUT, START_S, station, until
+from tests.daemonkit import START_S, station
 from tests.test_daemon_e2e import MakeDaemon
+from tests.waitkit import until
 
-pytestmark = [pytest.mark.slow, SLOW_TIMEOUT]
+pytestmark = pytest.mark.slow
 
 
 async def test_a_station_interrupted_by_kill_9_is_released_on_restart(

@@ -41,7 +41,6 @@ from cc_daemon.cli.status.client import read_status
 from cc_daemon.core.protocol import Finished
 from tests.daemonkit import (
     REPO,
-    SLOW_TIMEOUT,
     START_S,
     WAIT_S,
     DaemonProcess,
@@ -52,7 +51,6 @@ from tests.daemonkit import (
 TOOLS = ("unshare", "setpriv", "systemd-analyze")
 pytestmark = [
     pytest.mark.slow,
-    SLOW_TIMEOUT,
     pytest.mark.skipif(os.geteuid() != 0, reason="needs root for unshare --net and setpriv"),
     pytest.mark.skipif(
         any(shutil.which(t) is None for t in TOOLS) or find_library("seccomp") is None,

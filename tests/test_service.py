@@ -45,8 +45,8 @@ from tests.daemonkit import (
     merge,
     next_frame,
     station,
-    until,
 )
+from tests.waitkit import until
 
 
 def is_finished(message: object) -> bool:

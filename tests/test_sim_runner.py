@@ -49,7 +49,8 @@ from cc_daemon.sim.session import Run
 from cc_daemon.sim.summary import build_summary
 from cc_daemon.sim.violations import BITS_FLIPPED, ViolationKind
 from cc_daemon.store import JournalReader
-from tests.daemonkit import SLOW_TIMEOUT, START_S, WAIT_S, until
+from tests.daemonkit import START_S, WAIT_S
+from tests.waitkit import until
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -111,7 +112,6 @@ def test_the_demo_sends_one_frame_a_second_as_the_firmware_does() -> None:
     assert REALTIME.frame_period_s == 1.0
 
 
-@SLOW_TIMEOUT  # a 30 s survey on real time: longer on a loaded machine
 @pytest.mark.parametrize("firmware", ["ucm-2023", "manual"])
 async def test_a_two_station_survey_at_demo_pace(tmp_path: Path, firmware: str) -> None:
     # (How long the demo takes is a figure of the README, measured: a test never
@@ -656,7 +656,6 @@ def test_the_log_tap_has_no_finaliser_to_trip_over_a_closed_file(tmp_path: Path)
 # ---------------------------------------------------------------- output cut short
 
 
-@SLOW_TIMEOUT
 def test_a_reader_that_leaves_mid_cast_does_not_strand_the_probe(tmp_path: Path) -> None:
     """`cc-daemon --simulate | head`: the output stops, the survey does not."""
     db = tmp_path / "pipe.db"

@@ -25,9 +25,10 @@ from cc_daemon.sim.drum import DrumFaults
 from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.store import Journal
-from tests.daemonkit import WAIT_S, collect_until, next_frame, nth, station, until
+from tests.daemonkit import WAIT_S, collect_until, next_frame, nth, station
 from tests.gpiokit import gpio_rig
 from tests.test_gpio_daemon import Boat, _boat, _settings
+from tests.waitkit import until
 
 
 async def _until(boat: Boat, phase: str, timeout: float = WAIT_S) -> list[Received]:
