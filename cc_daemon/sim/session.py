@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from bisect import bisect_left
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -143,9 +144,23 @@ class Run:
             if flipper is None:
                 continue
             times = flipper.flip_times
-            for at in times[self._flips_seen[inbound] :]:
+            for flipped_at in times[self._flips_seen[inbound] :]:
+                at = self._read_time(flipped_at) if inbound else flipped_at
                 self.autopilot.bits_flipped(at - self.t0, inbound=inbound)
             self._flips_seen[inbound] = len(times)
+
+    def _read_time(self, flipped_at: float) -> float:
+        """The time of the read a flip on the daemon's frames was made in, which its
+        frames carry (taken a moment after the flip). A frame the flip spoilt is one of
+        them or begins in their bytes (the parser reads on through a spoilt frame: a
+        second corrupt frame found a read later has its window open at the first's
+        time), so the flip must be no later than them to excuse them."""
+        for port in self.ports:  # in the order they were attached, as their reads came
+            reads = port.read_times
+            i = bisect_left(reads, flipped_at)
+            if i < len(reads):
+                return reads[i]
+        return flipped_at
 
     async def _send(self, now: float, message: Message) -> None:
         self.console.frame_out(now, message)
