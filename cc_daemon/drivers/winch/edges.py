@@ -12,9 +12,9 @@ until the loop has heard why: until then the winch's status says it is still
 moving, never "stopped, no fault" short of its target (seen under load: a pulse
 storm's stop read as a motion that had simply ended at 1.27 m); an arrival heard
 after the loop has itself ended that motion (a cast's abort commanding the haul
-home) stops nothing more. Once the winch
-is closed, what was still on its way to the loop is dropped: the pins it would
-touch are closed. Its state is set up by `GpioWinch.__init__`.
+home) stops nothing more. Once the winch is closed, what was still on its way to
+the loop is dropped: the pins it would touch are closed. Its state is set up by
+`GpioWinch.__init__`.
 """
 
 from __future__ import annotations
