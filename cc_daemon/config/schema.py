@@ -20,7 +20,7 @@ from pydantic import (
 )
 
 from cc_daemon.config import naming
-from cc_daemon.config.profile import ProfileSettings
+from cc_daemon.config.profile import ProfileSettings, stepped_dwell_problem
 from cc_daemon.config.rules import (
     _HOUR_S,
     _SECTION,
@@ -585,6 +585,9 @@ class Settings(BaseModel):
                 "profile.resolve",
                 "sonde.parameters",
             )
+        problem = stepped_dwell_problem(self.cast, self.sonde, self.profile.resolve)
+        if problem is not None:
+            raise problem
         if self.sonar.port is not None and self.sonar.port == self.serial.port:
             raise _impossible(
                 "{0} must not be {1} (the sonar and the autopilot need a port each)",

@@ -118,6 +118,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self._estimate: DepthEstimate | None = None  # where the probe is, the count in doubt
         self._ignored = 0  # pulses not counted since the encoder fault
         self._stops_in_flight = 0  # motor stops made on a thread, not yet heard on the loop
+        self._motion = 0  # which motion a stop made on a thread ended (see `_pulse_seen`)
         # Loop side only.
         self._fault: str | None = None
         self._homed = False
@@ -447,6 +448,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
                 self._tick = None
             with self._lock:
                 self._goal = None
+                self._motion += 1
             guard, self._guard = self._guard, None
             if guard is not None:
                 # With the count in doubt, a motion that ran without a counted pulse
@@ -528,10 +530,16 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
 
     # ------------------------------------------------------------ handed to the loop
 
-    def _pulse_seen(self, count: int, stop: str | None) -> None:
+    def _pulse_seen(self, count: int, stop: str | None, motion: int) -> None:
         self._estimate = None  # a counted pulse: the count says where the probe is again
         if self._guard is not None:
             self._guard.pulse(self._clock.monotonic())
+        if stop == "arrived" and motion != self._motion:
+            # The loop ended that motion itself (a stop, a cast's abort commanding the
+            # haul home) before it heard of the arrival: halting now would stop the
+            # motion that replaced it, short of home with no fault (a stranded cast).
+            self._changed.set()
+            return
         if stop == "end of line":
             self._fail(
                 f"end of line: {self.drum.line_m(count):.2f} m out reaches winch.max_line_m "
