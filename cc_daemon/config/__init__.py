@@ -31,10 +31,8 @@ from cc_daemon.config.schema import (
     StatusSettings,
     StoreSettings,
     WebSettings,
-    WinchGpioSettings,
-    WinchSettings,
-    WinchSimSettings,
 )
+from cc_daemon.config.winch import WinchGpioSettings, WinchSettings, WinchSimSettings
 
 __all__ = [
     "DEFAULT_SEARCH_PATHS",
