@@ -30,6 +30,8 @@ MODULES = [
     "web",
     "journal_attacks",
     "web_attacks",
+    "bathymetry",
+    "profiles",
 ]
 
 

@@ -63,8 +63,10 @@ def execute(
     commanded = False
     for action in actions:
         match action:
-            case CommandWinch(depth_m=depth):
-                physics.command(now, depth)
+            case CommandWinch(depth_m=depth, max_speed_m_s=limit):
+                # A profile's limit is obeyed; a blind cast's approach speed is not
+                # (the tests of a blind cast reason at the line's one speed).
+                physics.command(now, depth, max_speed_m_s=limit)
                 run.commands.append((now, depth))
                 commanded = True
             case StopWinch(reason=reason):

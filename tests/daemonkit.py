@@ -4,6 +4,13 @@ The test is the autopilot: it holds the pty master through the simulator's
 `FramePort` and speaks real frames. The daemon gets the symlink to the slave
 as its serial port, a TOML config file, its own journal file, and logs JSON
 lines to a file the test can read.
+
+A test waits on the event it checks, never on a sleep (`tests/waitkit.py` polls a
+condition): `expect`, `next_frame` and `collect_until` take frames until the one
+wanted, each with a deadline (`WAIT_S`) that only a broken daemon reaches and that
+costs nothing when the event comes. That something does NOT happen is shown by an
+event that proves the moment has passed (`frames_before_reply`: the answer to a
+later frame has arrived, so an answer to an earlier one would have come first).
 """
 
 from __future__ import annotations
@@ -15,7 +22,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +31,70 @@ from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
 
 REPO = Path(__file__).resolve().parent.parent
+
+# How long a test waits for something that should happen: far beyond what any load
+# makes of it (a wait returns as soon as the event comes, so it costs nothing).
+WAIT_S = 30.0
+# How long a daemon process may take to start (to answer, or to exit on a bad
+# setting): its imports alone took 10 to 25 s on 2 cores at a load average of 25.
+START_S = 60.0
+
+
+async def next_frame(
+    port: FramePort, kind: type[Message] | None = None, timeout: float = WAIT_S
+) -> Received:
+    """The next frame (of `kind`, when given: others are skipped, still recorded)."""
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        got = await port.receive(left)
+        if got is not None and (kind is None or type(got.message) is kind):
+            return got
+    raise AssertionError(
+        f"no {'frame' if kind is None else kind.__name__} within {timeout:g} s;"
+        f" received: {[r.message for r in port.received[-10:]]}"
+    )
+
+
+async def collect_until(
+    port: FramePort, last: Callable[[Message], bool], timeout: float = WAIT_S
+) -> list[Received]:
+    """Every frame up to and including the first for which `last(message)` holds."""
+    out: list[Received] = []
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        got = await port.receive(left)
+        if got is not None:
+            out.append(got)
+            if last(got.message):
+                return out
+    raise AssertionError(f"not within {timeout:g} s; got {[r.message for r in out]}")
+
+
+def nth(kind: type[Message], n: int) -> Callable[[Message], bool]:
+    """For `collect_until`: true at the `n`th frame of `kind`."""
+    seen = 0
+
+    def counted(message: Message) -> bool:
+        nonlocal seen
+        seen += type(message) is kind
+        return seen >= n
+
+    return counted
+
+
+async def frames_before_reply(
+    port: FramePort, timestamp: int = 40_000, timeout: float = WAIT_S
+) -> list[Message]:
+    """What the daemon sends before its answer to a P-S sent now (the answer itself
+    is not included). The daemon answers frames in the order they arrive, so anything
+    it was going to say to what came before the P-S has arrived by then: an empty
+    list proves it said nothing, however slow the machine."""
+    await port.send(ProbePositionRequest(timestamp))
+    frames = await collect_until(
+        port, lambda m: isinstance(m, ProbePosition) and m.timestamp_s == timestamp, timeout
+    )
+    return [r.message for r in frames[:-1]]
+
 
 # Fast casts: 3 m at 1 m/s, 1 s at the bottom -> R-F about 7 s after R-O. The
 # simulated winch outside --simulate must be asked for by name (cc_daemon.daemon.simgate).
@@ -117,13 +188,13 @@ class DaemonProcess:
         self.port = await FramePort.over_fd(self.pty.master_fd)
         return self.port
 
-    async def start_and_connect(self, timeout: float = 15.0) -> FramePort:
+    async def start_and_connect(self, timeout: float = START_S) -> FramePort:
         self.start()
         port = await self.connect()
         await self.wait_answering(timeout)
         return port
 
-    async def wait_answering(self, timeout: float = 15.0) -> None:
+    async def wait_answering(self, timeout: float = START_S) -> None:
         """Ask S until the daemon answers R-P."""
         assert self.port is not None
         deadline = time.monotonic() + timeout
@@ -136,7 +207,7 @@ class DaemonProcess:
         raise AssertionError(f"daemon did not answer within {timeout} s:\n{self.log_text()}")
 
     async def expect(
-        self, kind: type[Message], timeout: float, *, fail: bool = True
+        self, kind: type[Message], timeout: float = WAIT_S, *, fail: bool = True
     ) -> Received | None:
         """The next frame of `kind` (other frames are skipped, still recorded)."""
         assert self.port is not None
@@ -152,6 +223,8 @@ class DaemonProcess:
         return None
 
     async def collect(self, seconds: float) -> list[Received]:
+        """Every frame for `seconds`: only where the time is the point (a scenario's
+        length); to wait for a frame, use `expect` or `collect_until`."""
         assert self.port is not None
         out: list[Received] = []
         deadline = time.monotonic() + seconds
@@ -170,7 +243,7 @@ class DaemonProcess:
         assert self.proc is not None
         self.proc.send_signal(signum)
 
-    async def wait_exit(self, timeout: float = 20.0) -> int:
+    async def wait_exit(self, timeout: float = START_S) -> int:
         assert self.proc is not None
         deadline = time.monotonic() + timeout
         while self.proc.poll() is None:
@@ -181,6 +254,18 @@ class DaemonProcess:
 
     def log_text(self) -> str:
         return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
+
+    async def logged(self, event: str, timeout: float = WAIT_S) -> dict[str, Any]:
+        """The first log event whose text contains `event`, once the daemon has written it."""
+
+        from tests.waitkit import until  # (waitkit imports this module)
+
+        def find() -> dict[str, Any] | None:
+            return next((e for e in self.log_events() if event in str(e.get("event"))), None)
+
+        found = await until(find, f"log event {event!r}", timeout)
+        assert found is not None
+        return found
 
     def log_events(self) -> list[dict[str, Any]]:
         events = []

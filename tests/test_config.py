@@ -279,8 +279,8 @@ def test_unknown_section_and_subsection_in_file(tmp_path: Path) -> None:
         f"winch.stepper (from {config}): unknown key; "
         "allowed keys in [winch]: backend, max_line_m, sim, gpio",
         f"logging (from {config}): unknown section; "
-        "allowed sections: serial, winch, cast, store, log, status, sonde, sonar, web"
-        " (did you mean log?)",
+        "allowed sections: serial, winch, cast, store, log, status, sonde, sonar, web, survey, "
+        "profile (did you mean log?)",
     ]
 
 
@@ -289,7 +289,8 @@ def test_unknown_environment_variables_are_errors() -> None:
         f"serial.bogus (from CC_DAEMON_SERIAL__BOGUS): unknown key; allowed keys in [serial]: "
         f"{SERIAL_KEYS}",
         "port (from CC_DAEMON_PORT): unknown section; "
-        "allowed sections: serial, winch, cast, store, log, status, sonde, sonar, web",
+        "allowed sections: serial, winch, cast, store, log, status, sonde, sonar, web, survey, "
+        "profile",
     ]
 
 
@@ -532,6 +533,8 @@ def as_toml(value: Any) -> str:
         return "`true`" if value else "`false`"
     if isinstance(value, str):
         return f'`"{value}"`'
+    if isinstance(value, tuple) and all(isinstance(v, str) for v in value):
+        return "`[" + ", ".join(f'"{v}"' for v in value) + "]`"
     if isinstance(value, tuple):  # an array of tables, shown on its page
         return "the default map (below)"
     return f"`{value}`"

@@ -8,7 +8,7 @@ file and the exit status).
 from __future__ import annotations
 
 import asyncio
-import itertools
+import contextlib
 import signal
 import sqlite3
 import time
@@ -21,13 +21,21 @@ from cc_daemon.core.protocol import (
     DepthReport,
     FaultReport,
     Finished,
+    Message,
     ProbePosition,
     ProbePositionRequest,
     Telemetry,
     encode,
 )
 from cc_daemon.sim.port import FramePort, Received
-from tests.daemonkit import DaemonProcess, station
+from tests.daemonkit import (
+    WAIT_S,
+    DaemonProcess,
+    collect_until,
+    frames_before_reply,
+    nth,
+    station,
+)
 
 pytestmark = pytest.mark.slow
 MakeDaemon = Callable[..., DaemonProcess]
@@ -37,7 +45,7 @@ def kinds(received: list[Received]) -> list[str]:
     return [r.message.frame for r in received]
 
 
-async def run_cast(daemon: DaemonProcess, timeout: float = 20.0) -> list[Received]:
+async def run_cast(daemon: DaemonProcess, timeout: float = WAIT_S) -> list[Received]:
     """Collect everything up to and including the R-F."""
     assert daemon.port is not None
     out: list[Received] = []
@@ -52,6 +60,11 @@ async def run_cast(daemon: DaemonProcess, timeout: float = 20.0) -> list[Receive
     raise AssertionError(f"no R-F; got {kinds(out)}\n{daemon.log_text()[-3000:]}")
 
 
+def deeper_than(depth_mm: int) -> Callable[[Message], bool]:
+    """A depth report from below `depth_mm`: the probe is that far down."""
+    return lambda m: isinstance(m, DepthReport) and m.depth_mm >= depth_mm
+
+
 def cast_rows(daemon: DaemonProcess) -> list[tuple[object, ...]]:
     with sqlite3.connect(daemon.db) as db:
         return db.execute("SELECT id, outcome FROM casts ORDER BY id").fetchall()
@@ -61,25 +74,25 @@ async def test_a_whole_cast(make_daemon: MakeDaemon) -> None:
     daemon = make_daemon()
     port = await daemon.start_and_connect()
     await port.send(Telemetry(99, -37260579, 404506308, 702385, 30_000, 100))
-    sent_at = time.monotonic()
     await port.send(station())
     frames = await run_cast(daemon)
     assert frames[0].message == Ack(frames[0].message.timestamp_s)
-    assert frames[0].time - sent_at < 0.5
     reports = [r for r in frames if isinstance(r.message, DepthReport)]
     depths = [r.message.depth_mm for r in reports]
-    assert 5 <= len(reports) <= 9  # about one a second for a ~7 s cast
     deepest = depths.index(max(depths))
     assert max(depths) == 3000
     assert depths[:deepest] == sorted(depths[:deepest])
     assert depths[deepest:] == sorted(depths[deepest:], reverse=True)
-    gaps = [b.time - a.time for a, b in itertools.pairwise(reports)]
-    assert all(0.75 < gap < 1.25 for gap in gaps), gaps  # tolerant of a loaded CI machine
     finished = frames[-1].message
     assert isinstance(finished, Finished) and finished.depth_mm == 0
-    # Timestamps follow the autopilot's clock (M carried t=100).
+    # Timestamps follow the autopilot's clock (M carried t=100), and the reports
+    # come one a period (1 s) at most, about 7 for a ~7 s cast: never a burst, on
+    # however slow a machine (a late report is one report, not several). The
+    # latencies and the cadence's jitter are figures of benchmarks/daemon.py.
     assert frames[0].message.timestamp_s == 100
-    assert reports[0].message.timestamp_s == 101
+    stamps = [r.message.timestamp_s for r in reports]
+    assert stamps == sorted(stamps) and 101 <= stamps[0] <= stamps[-1] <= finished.timestamp_s
+    assert 3 <= len(reports) <= finished.timestamp_s - 100 + 1
     daemon.send_signal(signal.SIGTERM)
     assert await daemon.wait_exit() == 0
     assert cast_rows(daemon) == [(1, "completed")]
@@ -108,41 +121,47 @@ async def test_a_too_shallow_station_is_skipped_at_once(make_daemon: MakeDaemon)
     daemon = make_daemon()
     port = await daemon.start_and_connect()
     await port.send(station(sonar_mm=600, confidence=95))
-    frames = await daemon.collect(1.5)
-    assert kinds(frames) == ["R-O", "R-F"]
+    frames = await collect_until(port, lambda m: isinstance(m, Finished))
+    assert kinds(frames) == ["R-O", "R-F"]  # no cast: not a single depth report
     assert frames[1].message == Finished(frames[1].message.timestamp_s, 0)
-    assert any(e.get("event") == "cast skipped: station too shallow" for e in daemon.log_events())
+    skipped = await daemon.logged("cast skipped")
+    assert skipped["event"] == "cast skipped: station too shallow"
 
 
 async def test_s_during_a_cast_gets_the_current_depth(make_daemon: MakeDaemon) -> None:
-    daemon = make_daemon()
+    daemon = make_daemon({"cast": {"target_depth_m": 8.0}})  # 8 s of descent to ask in
     port = await daemon.start_and_connect()
     await port.send(station())
-    await daemon.expect(Ack, 2)
-    await asyncio.sleep(2.5)  # the probe is about 2.5 m down
-    asked = time.monotonic()
+    await daemon.expect(Ack)
+    before = await collect_until(port, deeper_than(1000))
     await port.send(ProbePositionRequest(500))
-    reply = await daemon.expect(ProbePosition, 1)
-    assert reply is not None
-    assert reply.time - asked < 0.5
-    assert 2000 <= reply.message.depth_mm <= 3000
-    assert reply.message.timestamp_s == 500
+    until_reply = await collect_until(port, lambda m: isinstance(m, ProbePosition))
+    reply = until_reply[-1].message
+    after = await daemon.expect(DepthReport)
+    assert isinstance(reply, ProbePosition) and after is not None
+    assert reply.timestamp_s == 500
+    # The probe on its way down: the depth of the moment, between the reports either side.
+    last_report = [r.message for r in before + until_reply if isinstance(r.message, DepthReport)]
+    assert last_report[-1].depth_mm <= reply.depth_mm <= after.message.depth_mm  # type: ignore[union-attr]
+    assert 1000 <= reply.depth_mm < 8000
 
 
 async def test_m_resent_every_half_second_makes_exactly_one_cast(make_daemon: MakeDaemon) -> None:
     daemon = make_daemon()
     port = await daemon.start_and_connect()
-    received: list[Received] = []
 
-    async def resend_m(seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
+    async def resend_m() -> None:
+        while True:
             await port.send(station())
             await asyncio.sleep(0.5)
 
-    sender = asyncio.create_task(resend_m(12.0))
-    received = await daemon.collect(12.5)
-    await sender
+    sender = asyncio.create_task(resend_m())
+    try:  # the cast's own R-F, and six for Ms after it
+        received = await collect_until(port, nth(Finished, 7))
+    finally:
+        sender.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await sender
     first_f = kinds(received).index("R-F")
     # One cast: one run of depth reports, and the cast's own R-F after it.
     assert "R-M" not in kinds(received)[first_f:]
@@ -165,14 +184,14 @@ async def test_corrupt_bytes_and_split_frames_are_survived(make_daemon: MakeDaem
     for byte in request[3:]:  # the rest of the frame, one byte at a time
         await port.send(bytes([byte]))
         await asyncio.sleep(0.002)
-    reply = await daemon.expect(ProbePosition, 1)
+    reply = await daemon.expect(ProbePosition)
     assert reply is not None and reply.message.timestamp_s == 7
     # A bad checksum is dropped and the very next frame still answered.
     bad = bytes.fromhex("50 53 00 48 00 EC")
     await port.send(bad + encode(ProbePositionRequest(8)))
-    reply = await daemon.expect(ProbePosition, 1)
+    reply = await daemon.expect(ProbePosition)
     assert reply is not None and reply.message.timestamp_s == 8
-    assert await daemon.expect(ProbePosition, 0.3, fail=False) is None  # nothing for the bad one
+    assert await frames_before_reply(port) == []  # nothing for the bad one
     daemon.send_signal(signal.SIGTERM)
     assert await daemon.wait_exit() == 0
     debug = [e for e in daemon.log_events() if e.get("event") == "corrupt frame"]
@@ -188,14 +207,16 @@ async def test_sigterm_mid_cast_brings_the_probe_home_then_exits(
     daemon = make_daemon()
     port = await daemon.start_and_connect()
     await port.send(station())
-    await daemon.expect(Ack, 2)
-    await asyncio.sleep(2.2)
-    for _ in range(signals):  # a supervisor repeating SIGTERM must not abandon the probe
+    await daemon.expect(Ack)
+    down = await collect_until(port, deeper_than(2000))
+    daemon.send_signal(signal.SIGTERM)
+    await daemon.logged("signal received: bringing the probe home")
+    if signals == 2:  # a supervisor repeating SIGTERM must not abandon the probe
         daemon.send_signal(signal.SIGTERM)
-        await asyncio.sleep(0.2)
-    frames = await run_cast(daemon, timeout=10)
-    depths = [r.message.depth_mm for r in frames if isinstance(r.message, DepthReport)]
-    assert depths[-1] < depths[0] or depths[-1] == 0  # on its way up
+        await daemon.logged("already shutting down")
+    frames = await run_cast(daemon)
+    depths = [r.message.depth_mm for r in down + frames if isinstance(r.message, DepthReport)]
+    assert depths[-1] < max(depths) or depths[-1] == 0  # on its way up
     assert frames[-1].message.depth_mm == 0  # type: ignore[union-attr]
     assert await daemon.wait_exit() == 0
     assert cast_rows(daemon) == [(1, "aborted")]
@@ -207,13 +228,15 @@ async def test_a_second_sigint_stops_at_once_and_says_the_probe_may_be_down(
     daemon = make_daemon()
     port = await daemon.start_and_connect()
     await port.send(station())
-    await daemon.expect(Ack, 2)
-    await asyncio.sleep(2.0)
+    await daemon.expect(Ack)
+    await collect_until(port, deeper_than(1000))
     daemon.send_signal(signal.SIGINT)
-    await asyncio.sleep(0.2)
+    # Heard before the second is sent: two signals pending at once would be one.
+    await daemon.logged("signal received: bringing the probe home")
     daemon.send_signal(signal.SIGINT)
-    assert await daemon.wait_exit(5) == 130
-    assert await daemon.expect(Finished, 0.5, fail=False) is None
+    assert await daemon.wait_exit() == 130
+    # It has exited: all it wrote is in the pty already.
+    assert await daemon.expect(Finished, 1.0, fail=False) is None
     assert any("probe may be down" in str(e.get("event")) for e in daemon.log_events())
 
 
@@ -221,15 +244,15 @@ async def test_the_port_vanishing_mid_cast_is_survived(make_daemon: MakeDaemon) 
     daemon = make_daemon({"cast": {"target_depth_m": 4.0}})
     port = await daemon.start_and_connect()
     await port.send(station())
-    await daemon.expect(Ack, 2)
-    await daemon.expect(DepthReport, 2)
+    await daemon.expect(Ack)
+    await daemon.expect(DepthReport)
     # Pull the cable: the symlink goes, the old pty hangs up.
     port.detach()
     daemon.pty.unplug()
-    await asyncio.sleep(2.0)
+    await daemon.logged("serial port lost")
     daemon.pty.replug()  # a new pty behind the same path
     daemon.port = await FramePort.over_fd(daemon.pty.master_fd)
-    frames = await run_cast(daemon, timeout=15)
+    frames = await run_cast(daemon)
     reports = [r for r in frames if isinstance(r.message, DepthReport)]
     assert reports, kinds(frames)
     assert frames[-1].message.depth_mm == 0  # type: ignore[union-attr]
@@ -250,7 +273,7 @@ async def test_the_port_vanishing_mid_cast_is_survived(make_daemon: MakeDaemon) 
 async def test_a_bad_config_file_exits_2_before_opening_anything(make_daemon: MakeDaemon) -> None:
     daemon = make_daemon({"cast": {"target_depth_m": -1.0}})
     daemon.start()
-    assert await daemon.wait_exit(10) == 2
+    assert await daemon.wait_exit() == 2
     text = daemon.log_text()
     assert "cast.target_depth_m" in text and "-1" in text
     assert not daemon.db.exists()  # nothing opened, not even the journal
@@ -262,21 +285,24 @@ async def test_a_stranded_probe_is_reported_loudly_and_never_finished(
     daemon = make_daemon({"winch": {"sim": {"fail_home": True}}, "cast": {"target_depth_m": 2.0}})
     port = await daemon.start_and_connect()
     await port.send(station())
-    await daemon.expect(Ack, 2)
+    await daemon.expect(Ack)
     # 2 s down, 1 s dwell, the ascent jams at 0.5 m, the retry jams again: stranded.
-    frames = await daemon.collect(9.0)
+    frames = await collect_until(port, nth(FaultReport, 3))
     assert "R-F" not in kinds(frames)
     # Stranded: R-L (the fault, for the ground station) in place of R-M, with the
     # last known depth, every period.
-    tail = [r.message.depth_mm for r in frames[-3:] if isinstance(r.message, FaultReport)]
-    assert tail == [500, 500, 500]
+    stranded = kinds(frames)[kinds(frames).index("R-L") :]
+    assert stranded == ["R-L", "R-L", "R-L"]
+    assert [r.message.depth_mm for r in frames[-3:]] == [500, 500, 500]  # type: ignore[union-attr]
+    await daemon.logged("PROBE NOT HOME")
     alarms = [e for e in daemon.log_events() if "PROBE NOT HOME" in str(e.get("event"))]
     # Critical, and rate-limited: identical alarms each period pass once per window.
     assert 1 <= len(alarms) <= 2 and all(e["level"] == "critical" for e in alarms)
     # SIGTERM cannot bring it home: the daemon says so and exits without R-F.
     daemon.send_signal(signal.SIGTERM)
-    assert await daemon.wait_exit(10) == 130
-    assert await daemon.expect(Finished, 0.3, fail=False) is None
+    assert await daemon.wait_exit() == 130
+    # It has exited: all it wrote is in the pty already.
+    assert await daemon.expect(Finished, 1.0, fail=False) is None
     assert any("NOT home" in str(e.get("event")) for e in daemon.log_events())
     assert cast_rows(daemon) == [(1, "unfinished")]
 
@@ -286,7 +312,7 @@ async def test_a_simulated_winch_not_asked_for_is_refused_before_anything_is_ope
 ) -> None:
     daemon = make_daemon({"winch": {"sim": {"allow_outside_simulation": False}}})
     daemon.start()
-    assert await daemon.wait_exit(10) == 2
+    assert await daemon.wait_exit() == 2
     text = daemon.log_text()
     assert 'cc-daemon: bad configuration: winch.backend = "sim" (from ' in text
     assert "a simulated winch would answer the autopilot" in text
@@ -297,7 +323,7 @@ async def test_a_simulated_winch_not_asked_for_is_refused_before_anything_is_ope
 async def test_the_gpio_winch_without_gpio_pins_exits_saying_why(make_daemon: MakeDaemon) -> None:
     daemon = make_daemon({"winch": {"backend": "gpio"}})  # a laptop: no lgpio, no GPIO chip
     daemon.start()
-    assert await daemon.wait_exit(10) == 1
+    assert await daemon.wait_exit() == 1
     assert "cc-daemon: cannot " in daemon.log_text() and "GPIO" in daemon.log_text()
     # The journal was checked at start (it could be opened), but the daemon never
     # started serving: no start recorded, no cast.
@@ -309,7 +335,14 @@ async def test_the_gpio_winch_without_gpio_pins_exits_saying_why(make_daemon: Ma
 
 
 async def test_a_whole_cast_on_the_gpio_winch_with_mock_pins(make_daemon: MakeDaemon) -> None:
-    gpio = {"pin_factory": "mock", "line_speed_m_s": 2.0, "stall_timeout_s": 1.0}
+    # No fault is wanted here: the stall and loop watchdogs get times a loaded
+    # machine's pauses never reach (they cost nothing when nothing stalls).
+    gpio = {
+        "pin_factory": "mock",
+        "line_speed_m_s": 2.0,
+        "stall_timeout_s": 5.0,
+        "loop_watchdog_s": 5.0,
+    }
     daemon = make_daemon({"winch": {"backend": "gpio", "gpio": gpio}})
     await daemon.start_and_connect()
     await daemon.port.send(station())  # type: ignore[union-attr]
@@ -320,7 +353,7 @@ async def test_a_whole_cast_on_the_gpio_winch_with_mock_pins(make_daemon: MakeDa
     last = frames[-1].message
     assert isinstance(last, Finished) and last.depth_mm == 0
     daemon.send_signal(signal.SIGTERM)
-    assert await daemon.wait_exit(10) == 0
+    assert await daemon.wait_exit() == 0
     events = daemon.log_events()
     warned = [e for e in events if str(e.get("event", "")).startswith("SIMULATED WINCH")]
     assert warned and warned[0]["level"] == "critical"

@@ -124,6 +124,7 @@ async def test_a_healthy_pi_is_all_ok(pi: Pi) -> None:
         "GPIO": "OK",
         "lgpio": "OK",
         "plots and NetCDF": "OK",
+        "profile": "OK",
         "journal": "OK",
         "clock": "OK",
         "service": "OK",
@@ -339,6 +340,37 @@ async def test_a_sonde_without_pymodbus_is_a_fail(pi: Pi) -> None:
     pi.system = dataclasses.replace(pi.system, installed=lambda module: module != "pymodbus")
     checks = await pi.checks()
     assert checks["pymodbus"].level == "FAIL" and "sonde.backend" in checks["pymodbus"].detail
+
+
+async def test_the_profile_line_says_the_resolution_and_lag_the_configuration_gives(
+    pi: Pi,
+) -> None:
+    config = pi.root / "etc/cc-daemon/cc-daemon.toml"
+    shipped = config.read_text()
+    checks = await pi.checks()
+    assert checks["profile"].detail.startswith("no sonde")  # as shipped: casts not limited
+    config.write_text(shipped.replace('backend = "none"', 'backend = "modbus"', 1))
+    profile = (await pi.checks())["profile"]
+    assert profile.level == "OK", profile
+    assert profile.detail.startswith("continuous casts descend at 0.125 m/s (limit 0.125 m/s")
+    assert "2.0 readings a bin" in profile.detail
+    assert "temperature 0.25 m" in profile.detail and "do_concentration 1.00 m" in profile.detail
+    # Resolving the oxygen asks for 0.031 m/s: slower than the winch can run.
+    config.write_text(
+        shipped.replace('backend = "none"', 'backend = "modbus"', 1).replace(
+            'resolve = ["temperature"]', 'resolve = ["temperature", "do_concentration"]'
+        )
+    )
+    profile = (await pi.checks())["profile"]
+    assert profile.level == "WARN" and "cannot descend slower than 0.125 m/s" in profile.detail
+    assert "profile.bin_m" in profile.fix
+    config.write_text(
+        shipped.replace('backend = "none"', 'backend = "modbus"', 1).replace(
+            'mode = "continuous"', 'mode = "stepped"'
+        )
+    )
+    profile = (await pi.checks())["profile"]
+    assert profile.detail.startswith("stepped casts dwell >= 6 s a level (3 x temperature 2 s)")
 
 
 @pytest.mark.parametrize(

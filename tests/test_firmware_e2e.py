@@ -16,7 +16,7 @@ import pytest
 from cc_daemon.sim.options import AutopilotOnlyOptions
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.runner import run_autopilot
-from tests.daemonkit import DaemonProcess
+from tests.daemonkit import START_S, DaemonProcess
 
 pytestmark = pytest.mark.slow
 MakeDaemon = Callable[..., DaemonProcess]
@@ -40,7 +40,9 @@ async def test_a_survey_against_each_firmware_profile(
         )
         try:
             daemon.start()
-            await asyncio.sleep(1.5)  # let it open its port
+            # The autopilot judges an M unanswered after 1 s: start it once the daemon
+            # listens (its start took 25 s on a loaded machine).
+            await daemon.logged("serial port open", START_S)
             daemon.check_alive()
             out = io.StringIO()
             code = await run_autopilot(

@@ -62,6 +62,24 @@ def test_a_bad_value_names_its_key(gpio: dict[str, object], expected: str) -> No
     assert problems(gpio) == [expected]
 
 
+def test_a_stall_rule_every_slow_motion_would_break_is_refused() -> None:
+    # One pulse a turn of the 0.09 m drum at the approach speed (half of 0.25 m/s):
+    # a pulse every 2.26 s, and the default 2 s stall rule would stop each approach,
+    # blind cast and descent slowed for the sonde (found by a review of issue 28).
+    [line] = problems({"pulses_per_rev": 1})
+    assert line.startswith("winch.gpio.stall_timeout_s = 2.0 (default), ")
+    assert "winch.gpio.pulses_per_rev = 1 (from the command line): " in line
+    assert "winch.gpio.stall_timeout_s must be at least 3.39 s" in line
+    assert "a pulse comes every 2.26 s" in line
+    settings = load_settings(
+        None,
+        {"winch": {"gpio": {"pulses_per_rev": 1, "stall_timeout_s": 3.5}}},
+        env={},
+        search_paths=(),
+    )
+    assert settings.winch.gpio.stall_timeout_s == 3.5
+
+
 def test_pins_must_be_distinct_and_fit_the_circuit() -> None:
     assert problems({"haulin_pin": 27}) == [
         "winch.gpio.haulin_pin = 27 (from the command line) and winch.gpio.pulse_pin = 27 "

@@ -14,7 +14,7 @@ import socket
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -118,26 +118,44 @@ def _voluntary_switches(native_id: int) -> int:
     return int(status.split("voluntary_ctxt_switches:")[1].split()[0])
 
 
+def _poll(check: Callable[[], bool], what: str, timeout: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not check():
+        assert time.monotonic() < deadline, f"not within {timeout} s: {what}"
+        time.sleep(0.02)
+
+
+def _count(db: Path, table: str) -> int:
+    with sqlite3.connect(db) as conn:
+        return int(conn.execute(f"SELECT count(*) FROM {table}").fetchone()[0])
+
+
+def _settled(native_id: int, quiet_s: float = 0.3) -> bool:
+    """The thread did not wake for `quiet_s` (done with what it was doing, asleep)."""
+    before = _voluntary_switches(native_id)
+    time.sleep(quiet_s)
+    return _voluntary_switches(native_id) == before
+
+
 def test_the_journal_writer_sleeps_until_a_row_arrives(tmp_path):
     db = tmp_path / "j.db"
     journal = Journal(db)
     journal.open()
     try:
         journal.record_event("hello")
-        time.sleep(0.3)  # written at once: an event wakes the writer
+        _poll(lambda: _count(db, "events") > 0, "the event written (an event wakes the writer)")
         writer = next(t for t in threading.enumerate() if t.name == "cc-daemon-journal")
         assert writer.native_id is not None
-        before = _voluntary_switches(writer.native_id)
+        native_id = writer.native_id
+        # Done with the commit (its fsync is a sleep of its own), asleep. A writer that
+        # ticked once a second is still caught: it settles between ticks, then ticks
+        # twice in the 2.5 s below.
+        _poll(lambda: _settled(native_id), "the writer asleep after its commit", timeout=10.0)
+        before = _voluntary_switches(native_id)
         time.sleep(2.5)
-        assert _voluntary_switches(writer.native_id) - before == 0  # was one a second
-        started = time.monotonic()
-        journal.record_fix(T)  # a fix into an empty buffer wakes it too
-        while time.monotonic() - started < 2.0:
-            with sqlite3.connect(db) as conn:
-                if conn.execute("SELECT count(*) FROM fixes").fetchone()[0]:
-                    break
-            time.sleep(0.02)
-        assert time.monotonic() - started < 1.5
+        assert _voluntary_switches(native_id) - before == 0  # was one a second
+        journal.record_fix(T)  # a fix into an empty buffer wakes it too (else: never written)
+        _poll(lambda: _count(db, "fixes") > 0, "the fix written")
     finally:
         journal.close()
 

@@ -14,6 +14,8 @@ from cc_daemon.daemon.quiet_port import QuietPort
 from cc_daemon.daemon.service import Daemon
 from cc_daemon.daemon.systemd import SystemdNotifier
 from cc_daemon.sim.pty import PtyPair
+from tests.daemonkit import WAIT_S
+from tests.waitkit import until
 
 
 def test_silence_is_said_after_first_s_then_at_doubling_intervals() -> None:
@@ -73,14 +75,24 @@ async def test_the_daemon_says_it_in_the_systemd_status_until_a_frame_arrives(
         daemon._housekeeping._quiet = QuietPort(first_s=0.3, max_s=0.3)
         task = asyncio.create_task(daemon.run())
         try:
-            await asyncio.wait_for(daemon.ready.wait(), 5)
-            await asyncio.sleep(1.6)  # the housekeeping says it at its next second
-            before = _drain(server)
+            await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
+            said: list[str] = []
+
+            def silence_said() -> bool:
+                said.extend(_drain(server))
+                return bool(said)
+
+            await until(silence_said, what="the silence said")
             os.write(pty.master_fd, encode(Telemetry(1, -37260579, 404506308, 0, 6000, 90)))
-            await asyncio.sleep(2.5)  # heard: nothing more to say
+            await until(lambda: daemon.frames_in == 1, what="the frame heard")
+            _drain(server)  # what was said before the daemon heard it
+            # Heard: nothing due any more, and nothing said over several of the
+            # 0.3 s intervals (on a slow machine, over fewer: never a false failure).
+            assert daemon._housekeeping._quiet.next_due() is None
+            await asyncio.sleep(1.0)
             after = _drain(server)
         finally:
             daemon.request_shutdown()
-            assert await asyncio.wait_for(task, 10) == 0
-    assert before and f"nothing heard from the autopilot on {pty.path} for " in before[0]
+            assert await asyncio.wait_for(task, WAIT_S) == 0
+    assert f"nothing heard from the autopilot on {pty.path} for " in said[0]
     assert after == []

@@ -29,6 +29,7 @@ import socket
 import stat
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from ctypes.util import find_library
 from functools import cache
@@ -38,7 +39,14 @@ import pytest
 
 from cc_daemon.cli.status.client import read_status
 from cc_daemon.core.protocol import Finished
-from tests.daemonkit import REPO, DaemonProcess, station, toml_text
+from tests.daemonkit import (
+    REPO,
+    START_S,
+    WAIT_S,
+    DaemonProcess,
+    station,
+    toml_text,
+)
 
 TOOLS = ("unshare", "setpriv", "systemd-analyze")
 pytestmark = [
@@ -152,15 +160,19 @@ async def test_a_whole_cast_inside_the_sandbox(make_daemon: Callable[..., Daemon
             },
         )
         port = await daemon.connect()
-        await daemon.wait_answering(30.0)
+        await daemon.wait_answering(START_S)
         loop = asyncio.get_running_loop()
-        ready = await asyncio.wait_for(loop.sock_recv(notify, 4096), 10)
+        ready = await asyncio.wait_for(loop.sock_recv(notify, 4096), WAIT_S)
         assert b"READY=1" in ready
 
         await port.send(station())
-        await daemon.expect(Finished, 30.0)
-        await asyncio.sleep(0.3)
-        doc = await asyncio.to_thread(read_status, runtime / "status.sock")
+        await daemon.expect(Finished)
+        deadline = time.monotonic() + WAIT_S  # the status counts the cast once it has ended
+        while (doc := await asyncio.to_thread(read_status, runtime / "status.sock"))["counters"][
+            "casts_completed"
+        ] != 1:
+            assert time.monotonic() < deadline, doc
+            await asyncio.sleep(0.05)
 
     assert "seccomp_exec: " in daemon.log_text() and "system calls denied" in daemon.log_text()
     assert not (daemon.tmp / "cc-daemon.db").exists()  # nothing written beside the config

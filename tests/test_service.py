@@ -8,6 +8,7 @@ import contextlib
 import gc
 import socket
 import sqlite3
+import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,20 @@ from cc_daemon.ground.clock import SystemClock
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.store import Journal
-from tests.daemonkit import FAST_CAST, merge, station
+from tests.daemonkit import (
+    FAST_CAST,
+    WAIT_S,
+    collect_until,
+    frames_before_reply,
+    merge,
+    next_frame,
+    station,
+)
+from tests.waitkit import until
+
+
+def is_finished(message: object) -> bool:
+    return isinstance(message, Finished)
 
 
 @pytest.fixture
@@ -69,15 +83,13 @@ async def test_a_bug_in_the_cast_machine_stops_the_motor_and_keeps_alarming(
     monkeypatch.setattr(CastMachine, "step", broken_step)
     with structlog.testing.capture_logs() as logs:
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
         await port.send(station())
-        assert (await port.receive(1)).message == Ack(100)  # type: ignore[union-attr]
-        received = [await port.receive(1.5) for _ in range(4)]
+        assert (await next_frame(port)).message == Ack(100)
+        messages = [(await next_frame(port)).message for _ in range(4)]
         status = daemon.snapshot()
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 5) == EXIT_PROBE_MAY_BE_DOWN
-    messages = [r.message for r in received if r is not None]
-    assert len(messages) == 4
+        assert await asyncio.wait_for(task, WAIT_S) == EXIT_PROBE_MAY_BE_DOWN
     # Still reporting, never R-F; once the bug struck, as R-L (the fault, to the ground station).
     assert all(isinstance(m, DepthReport | FaultReport) for m in messages)
     assert isinstance(messages[-1], FaultReport) and isinstance(messages[-2], FaultReport)
@@ -92,12 +104,12 @@ async def test_a_bug_in_the_cast_machine_stops_the_motor_and_keeps_alarming(
 async def test_a_second_ctrl_c_while_idle_is_a_clean_exit(rig: tuple[Daemon, FramePort]) -> None:
     daemon, port = rig
     task = asyncio.create_task(daemon.run())
-    await asyncio.wait_for(daemon.ready.wait(), 5)
+    await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
     await port.send(ProbePositionRequest(9))
-    assert await port.receive(1) is not None
+    await next_frame(port, ProbePosition)
     daemon.request_shutdown()
     daemon.request_shutdown(immediate=True)
-    assert await asyncio.wait_for(task, 5) == EXIT_OK
+    assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
 
 
 async def test_start_up_objects_are_frozen_out_of_the_collectors_scans(
@@ -109,21 +121,21 @@ async def test_start_up_objects_are_frozen_out_of_the_collectors_scans(
     gc.unfreeze()
     assert gc.get_freeze_count() == 0
     task = asyncio.create_task(daemon.run())
-    await asyncio.wait_for(daemon.ready.wait(), 5)
+    await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
     assert gc.get_freeze_count() > 1000
     daemon.request_shutdown()
-    assert await asyncio.wait_for(task, 5) == EXIT_OK
+    assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
 
 
 async def test_no_cast_starts_once_shutting_down(rig: tuple[Daemon, FramePort]) -> None:
     daemon, port = rig
     task = asyncio.create_task(daemon.run())
-    await asyncio.wait_for(daemon.ready.wait(), 5)
+    await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
     daemon._shutting_down = True  # as request_shutdown does, before the loop winds down
     await port.send(station())
-    assert await port.receive(0.5) is None  # no R-O: the autopilot must not count on us
+    assert await frames_before_reply(port) == []  # no R-O: the autopilot must not count on us
     daemon.request_shutdown()
-    assert await asyncio.wait_for(task, 5) == EXIT_OK
+    assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
     assert daemon.snapshot().casts_completed == 0
 
 
@@ -173,11 +185,12 @@ async def test_after_an_internal_error_shutdown_never_restarts_the_motor(
         daemon = Daemon(_settings(tmp_path, pty.path), winch=winch)
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
         await port.send(station())
-        await asyncio.sleep(2.5)
+        await until(lambda: "stop" in winch.calls, what="the bug struck: the motor stopped")
+        await next_frame(port, FaultReport)  # alarming
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 5) == EXIT_PROBE_MAY_BE_DOWN
+        assert await asyncio.wait_for(task, WAIT_S) == EXIT_PROBE_MAY_BE_DOWN
         await port.close()
     failed_at = winch.calls.index("stop")  # the first stop is the one after the bug
     assert winch.calls[0] == "move_to 3.0"
@@ -195,19 +208,13 @@ async def test_a_crashing_background_task_does_not_touch_the_cast(
         daemon = Daemon(_settings(tmp_path, pty.path))
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
         await port.send(station())
-        finished = None
-        for _ in range(20):
-            got = await port.receive(1.5)
-            if got is not None and isinstance(got.message, Finished):
-                finished = got.message
-                break
+        finished = (await next_frame(port, Finished)).message
         daemon.request_shutdown()
-        await asyncio.wait_for(task, 5)
+        await asyncio.wait_for(task, WAIT_S)
         await port.close()
-    assert finished is not None
-    assert finished.depth_mm == 0
+    assert isinstance(finished, Finished) and finished.depth_mm == 0
     assert any(e["event"] == "background task crashed; restarting it" for e in logs)
 
 
@@ -217,17 +224,13 @@ async def test_a_probe_found_down_is_brought_home_before_anything_else(tmp_path:
         daemon = Daemon(_settings(tmp_path, pty.path), winch=winch)
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
         winch.move_to(15.0)  # lowered by hand, or left down by a previous run
-        await asyncio.sleep(1.6)
+        await until(lambda: winch.status().depth_m > 14.9, what="the probe lowered")
         await port.send(station())
-        frames = []
-        while (got := await port.receive(3)) is not None:
-            frames.append(got.message)
-            if isinstance(got.message, Finished):
-                break
+        frames = [r.message for r in await collect_until(port, is_finished)]
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 5) == EXIT_OK
+        assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
         await port.close()
     assert isinstance(frames[0], Ack)
     assert isinstance(frames[-1], Finished) and frames[-1].depth_mm == 0
@@ -242,7 +245,7 @@ async def test_systemd_hears_ready_while_the_port_is_still_missing(tmp_path: Pat
     sock_path = tmp_path / "notify.sock"
     with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as server:
         server.bind(str(sock_path))
-        server.settimeout(5)
+        server.settimeout(WAIT_S)
         daemon = Daemon(
             _settings(tmp_path, tmp_path / "no-such-tty"),
             notifier=SystemdNotifier(str(sock_path), watchdog=True),
@@ -250,9 +253,9 @@ async def test_systemd_hears_ready_while_the_port_is_still_missing(tmp_path: Pat
         task = asyncio.create_task(daemon.run())
         first = await asyncio.to_thread(server.recv, 1024)
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 5) == EXIT_OK
+        assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
         rest = []
-        server.settimeout(0.2)
+        server.settimeout(0.2)  # the daemon has ended: all it said is queued already
         with contextlib.suppress(TimeoutError):
             while True:
                 rest.append(server.recv(1024))
@@ -269,13 +272,12 @@ async def test_a_requested_shutdown_mid_cast_is_a_warning_not_an_error(
     daemon, port = rig
     with structlog.testing.capture_logs() as logs:
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
         await port.send(station())
-        assert (await port.receive(1)).message == Ack(100)  # type: ignore[union-attr]
-        report = await port.receive(1.5)
-        assert report is not None and isinstance(report.message, DepthReport)
+        assert (await next_frame(port)).message == Ack(100)
+        await next_frame(port, DepthReport)
         daemon.request_shutdown()  # systemctl restart, in the middle of the cast
-        assert await asyncio.wait_for(task, 15) == EXIT_OK
+        assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
     home = [e for e in logs if e["event"].startswith("cast ")]
     home = [e for e in home if "bringing the probe home" in e["event"]]
     assert [(e["log_level"], e["event"]) for e in home] == [
@@ -294,22 +296,22 @@ async def test_a_station_repeated_within_the_rearm_window_says_so(
     shoal = station(sonar_mm=500)  # refused at once: R-O, R-F, and the station is done
     with structlog.testing.capture_logs() as logs:
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
+        first_sent = time.monotonic()
         for _ in range(2):
             await port.send(shoal)
-            while (got := await port.receive(2)) is not None:
-                if isinstance(got.message, Finished):
-                    break
-            assert got is not None
+            await collect_until(port, is_finished)
+        second_answered = time.monotonic()
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 5) == EXIT_OK
+        assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
     [repeat] = [e for e in logs if e["event"].startswith("station repeated")]
     assert (
         repeat["event"] == "station repeated within the re-arm window: repeating R-F, no new cast"
     )
     assert repeat["log_level"] == "info"
     assert repeat["rearm_s"] == 120.0
-    assert 0 <= repeat["since_s"] < 5
+    # Since its R-F: no longer than from the first M to the second R-F, as the test saw them.
+    assert 0 <= repeat["since_s"] <= round(second_answered - first_sent, 1) + 0.1
 
 
 class DriftingWinch(SimulatedWinch):
@@ -332,16 +334,15 @@ async def test_r_f_always_carries_depth_0(tmp_path: Path) -> None:
         )
         port = await FramePort.over_fd(pty.master_fd)
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
         finishes: list[Finished] = []
         for shallow in (False, True, False):  # a cast, a skipped shoal, a repeated station
             await port.send(station(sonar_mm=300 if shallow else 30_000))
-            while (got := await port.receive(5)) is not None:
-                if isinstance(got.message, Finished):
-                    finishes.append(got.message)
-                    break
+            finish = (await next_frame(port, Finished)).message
+            assert isinstance(finish, Finished)
+            finishes.append(finish)
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 5) == EXIT_OK
+        assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
         await port.close()
     assert len(finishes) == 3 and all(f.depth_mm == 0 for f in finishes)
 
@@ -361,9 +362,9 @@ async def test_rows_the_journal_could_put_nowhere_make_a_non_zero_exit(
     daemon = Daemon(settings, journal=journal)
     try:
         task = asyncio.create_task(daemon.run())
-        await asyncio.wait_for(daemon.ready.wait(), 5)
+        await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
         daemon.request_shutdown()
-        assert await asyncio.wait_for(task, 10) == EXIT_ROWS_LOST == 5
+        assert await asyncio.wait_for(task, WAIT_S) == EXIT_ROWS_LOST == 5
     finally:
         pty.close()
     assert journal.health().dropped_rows >= 2  # daemon_started, daemon_stopped
@@ -378,18 +379,15 @@ async def test_a_burst_of_fixes_is_heard_whole_and_the_last_is_the_fix(
     burst = b"".join(map(encode, fixes[:30])) + encode(ProbePositionRequest(30))
     burst += b"".join(map(encode, fixes[30:]))
     task = asyncio.create_task(daemon.run())
-    await asyncio.wait_for(daemon.ready.wait(), 5)
+    await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
     await port.send(burst)  # one write: read in one or a few chunks, runs of T around the S
-    got = await port.receive(2)
-    assert got is not None and isinstance(got.message, ProbePosition)
+    got = await next_frame(port)
+    assert isinstance(got.message, ProbePosition)
     assert got.message.timestamp_s == 30  # the S's own time, whatever came before it
-    for _ in range(100):  # the T after the S: read by now, or a moment later
-        if daemon.frames_in == 41:
-            break
-        await asyncio.sleep(0.02)
+    await until(lambda: daemon.frames_in >= 41, what="the T after the S read")
     status = daemon.snapshot()
     daemon.request_shutdown()
-    assert await asyncio.wait_for(task, 5) == EXIT_OK
+    assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
     assert status.frames_in == 41 and status.corrupt_frames == 0
     assert status.last_fix is not None and status.last_fix.message == fixes[-1]
     with sqlite3.connect(daemon.settings.store.path or "") as db:
@@ -413,13 +411,13 @@ async def test_a_broken_fix_inside_a_burst_is_counted_corrupt_and_the_rest_heard
     frames = [encode(fix) for fix in fixes]
     frames[10] = frames[10][:24] + bytes([frames[10][24] ^ 0x01])  # checksum off
     task = asyncio.create_task(daemon.run())
-    await asyncio.wait_for(daemon.ready.wait(), 5)
+    await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
     await port.send(b"".join(frames) + encode(ProbePositionRequest(20)))
-    got = await port.receive(2)
-    assert got is not None and isinstance(got.message, ProbePosition)
+    got = await next_frame(port)
+    assert isinstance(got.message, ProbePosition)
     assert got.message.timestamp_s == 20
     status = daemon.snapshot()
     daemon.request_shutdown()
-    assert await asyncio.wait_for(task, 5) == EXIT_OK
+    assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
     assert status.frames_in == 20 and status.corrupt_frames == 1  # 19 fixes and the S
     assert status.last_fix is not None and status.last_fix.message == fixes[-1]

@@ -195,6 +195,17 @@ def test_the_summary_totals_say_where_the_data_is_and_how_to_export_it() -> None
         )
         for line in lines
     )
+    # The profiles' products, named in a block of their own before the log and the verdict.
+    block = lines.index("profiles a limnologist can publish:")
+    assert lines[block + 1].endswith(
+        " -m cc_daemon profiles --db /tmp/x/simulate.db -o /tmp/x/simulate-profiles"
+    )
+    assert "stations.csv and stations.geojson (thermocline" in lines[block + 2]
+    assert lines[block + 3] == "the lake floor from this run's soundings:"
+    assert lines[block + 4].endswith(
+        " -m cc_daemon map --db /tmp/x/simulate.db -o /tmp/x/simulate-map"
+    )
+    assert lines[block + 6].startswith("daemon log (JSON lines):")
     assert lines[-1] == (
         "SURVEY OK: 1 of 1 castable station measured; the daemon kept the protocol (exit status 0)"
     )

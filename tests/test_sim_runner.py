@@ -8,18 +8,21 @@ import contextlib
 import io
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from cc_daemon.config import Settings
+from cc_daemon.core.protocol import DepthReport, ErrorKind, Finished, encode
 from cc_daemon.daemon.service import Daemon
 from cc_daemon.sim import mission as mission_module
-from cc_daemon.sim.autopilot import Autopilot
+from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig
 from cc_daemon.sim.commands import (
     EXIT_USAGE,
     add_commands,
@@ -43,9 +46,11 @@ from cc_daemon.sim.options import (
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.runner import run_autopilot, run_simulation
 from cc_daemon.sim.session import Run
-from cc_daemon.sim.sonar_chain import SETTLE_S
 from cc_daemon.sim.summary import build_summary
+from cc_daemon.sim.violations import BITS_FLIPPED, ViolationKind
 from cc_daemon.store import JournalReader
+from tests.daemonkit import START_S, WAIT_S
+from tests.waitkit import until
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -65,6 +70,8 @@ QUICK = Pace(
 
 
 async def _simulate(tmp_path: Path, **options: object) -> tuple[int, str, float]:
+    """Its exit status, its plain output and how long it took (for a figure, never a
+    test's verdict: a busy machine stretches a run)."""
     out = io.StringIO()
     started = time.monotonic()
     code = await run_simulation(
@@ -107,10 +114,11 @@ def test_the_demo_sends_one_frame_a_second_as_the_firmware_does() -> None:
 
 @pytest.mark.parametrize("firmware", ["ucm-2023", "manual"])
 async def test_a_two_station_survey_at_demo_pace(tmp_path: Path, firmware: str) -> None:
-    code, text, elapsed = await _simulate(tmp_path, stations=2, pace=FAST, firmware=firmware)
+    # (How long the demo takes is a figure of the README, measured: a test never
+    # times a run, which a busy machine stretches.)
+    code, text, _ = await _simulate(tmp_path, stations=2, pace=FAST, firmware=firmware)
     assert code == 0, text
     # The 2023 firmware: T every 1.1 s and a stick jog at the deepest station first.
-    assert elapsed < (25 if firmware == "manual" else 40)
     assert "corrupt frames: 0 from the daemon, 0 rejected by the daemon" in text
     jogged = "S1: stick jog before the station: 1 P-D then 3 P-U frames (no reply expected)"
     assert (jogged in text) == (firmware == "ucm-2023")
@@ -210,20 +218,97 @@ async def test_bit_flips_both_ways_are_counted_and_each_fault_they_cause_is_excu
     assert [outcome for outcome, _, _ in _casts(tmp_path)] == ["completed", "skipped-shallow"]
 
 
-async def _survey_interrupted_at(tmp_path: Path, *seconds: float) -> tuple[int, str]:
-    """A 2-station survey with a slow winch, sent a real SIGINT at each of `seconds`
-    (mid-cast at S1); its exit status and plain output."""
+class FlipAt:
+    """Line noise at chosen bytes of the stream (offset -> bits), as the simulator's
+    `BitFlipper` does it: each flip timed with the clock, inside the port's read."""
+
+    def __init__(self, flips: dict[int, int]) -> None:
+        self.flips = flips
+        self.bytes_seen = 0
+        self.flip_times: list[float] = []
+
+    def __call__(self, data: bytes) -> bytes:
+        out = bytearray(data)
+        for offset, bits in self.flips.items():
+            if self.bytes_seen <= offset < self.bytes_seen + len(data):
+                out[offset - self.bytes_seen] ^= bits
+                self.flip_times.append(time.monotonic())
+        self.bytes_seen += len(data)
+        return bytes(out)
+
+
+@pytest.mark.parametrize("case", ["a good frame then a spoilt one in one read", "a cascade"])
+async def test_every_corrupt_frame_a_flip_made_is_excused(tmp_path: Path, case: str) -> None:
+    # Found under load (issue 31), a run judged PROTOCOL VIOLATED by its own noise. A
+    # flip is timed inside the read, a moment before the read's frames are: a frame
+    # spoilt after a good one in the same read had a window (from that good frame to
+    # now) that missed the flip. And one flip that made an R-M's checksum byte 0x52
+    # ('R') spoilt two frames: the R-M, then "52 52" with the next frame's sync byte,
+    # as the parser read on through it; the second's window opened after the flip.
+    if case == "a cascade":
+        first = encode(DepthReport(4, 47))  # its checksum byte is 0xD2: flipped, 0x52
+        writes = [first, encode(Finished(4, 0))]
+        flips = {len(first) - 1: 0x80}
+        corrupt = [ErrorKind.BAD_CHECKSUM, ErrorKind.UNKNOWN_TYPE]
+    else:
+        writes = [b"\x00", encode(DepthReport(4, 47)) + encode(DepthReport(5, 48))]
+        flips = {12: 0x01}  # in the second R-M of the second read
+        corrupt = [ErrorKind.BAD_CHECKSUM]
+    mission = make_mission(2, 1)
+    autopilot = Autopilot(mission, AutopilotConfig(boat_speed_m_s=300.0))
+    console = SimConsole(io.StringIO(), live=False)
+    with PtyPair(tmp_path / "tty") as pair:
+        run = Run(mission, autopilot, console, pair=pair, flip_in=FlipAt(flips))  # type: ignore[arg-type]
+        await run.attach_pty()
+        port = run.port
+        assert port is not None
+        slave = os.open(pair.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            written = 0
+            for data in writes:  # one read each: the next is written once it is read
+                os.write(slave, data)
+                written += len(data)
+                await until(lambda n=written: port.bytes_in == n, what="the write read")
+            await run.collect()  # as the run takes them: flips, errors, frames
+        finally:
+            os.close(slave)
+            await run.close()
+    assert [e.kind for e in port.errors] == corrupt
+    judged = [v for v in autopilot.violations if v.kind is ViolationKind.CORRUPT_FRAME]
+    assert [v.excused_by for v in judged] == [BITS_FLIPPED] * len(corrupt)
+
+
+Moment = Callable[[str], bool]  # on the run's output so far: is it time?
+
+
+def said(text: str) -> Moment:
+    return lambda out: text in out
+
+
+def probe_down(depth_m: float) -> Moment:
+    """A depth report from at least `depth_m` down has arrived: the cast is running."""
+    reports = re.compile(r"← R-M t=\d+ depth (\d+\.\d+) m")
+    return lambda out: any(float(d) >= depth_m for d in reports.findall(out))
+
+
+async def _survey_interrupted_at(tmp_path: Path, *moments: Moment) -> tuple[int, str]:
+    """A 2-station survey with a slow winch, sent a real SIGINT at each of `moments`
+    in turn, as the run's output shows it; its exit status and plain output."""
     slow_winch = Pace("quick", 0.25, 300.0, 0.4, cast={"bottom_dwell_s": 5.0})
-    loop = asyncio.get_running_loop()
-    # The boat settles on station (SETTLE_S) before its M, so the cast starts that much later.
-    timers = [loop.call_later(t + SETTLE_S, os.kill, os.getpid(), signal.SIGINT) for t in seconds]
     out = io.StringIO()
+
+    async def interrupt() -> None:
+        for moment in moments:
+            await until(lambda m=moment: m(out.getvalue()), what="the moment to interrupt")
+            os.kill(os.getpid(), signal.SIGINT)
+
+    interrupter = asyncio.create_task(interrupt())
     try:
         code = await run_simulation(
             SimOptions(
                 stations=2,
                 pace=slow_winch,
-                firmware="manual",  # timed for a cast that starts on arrival (no stick jog)
+                firmware="manual",  # a cast that starts on arrival (no stick jog)
                 db=tmp_path / "survey.db",
                 live=False,
                 out=out,
@@ -231,15 +316,16 @@ async def _survey_interrupted_at(tmp_path: Path, *seconds: float) -> tuple[int, 
             )
         )
     finally:
-        for timer in timers:
-            timer.cancel()
+        interrupter.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await interrupter
     return code, out.getvalue()
 
 
 async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
     tmp_path: Path,
 ) -> None:
-    code, text = await _survey_interrupted_at(tmp_path, 3.0)
+    code, text = await _survey_interrupted_at(tmp_path, probe_down(0.5))
     assert code == 3, text
     assert "Ctrl-C: the daemon brings the probe home, then stops" in text
     assert "aborted: shutdown" in _row(text, "S1")
@@ -253,7 +339,7 @@ async def test_ctrl_c_mid_cast_brings_the_probe_home_and_prints_the_summary(
 async def test_ctrl_c_before_any_cast_claims_nothing_about_bringing_the_probe_home(
     tmp_path: Path,
 ) -> None:
-    code, text = await _survey_interrupted_at(tmp_path, 0.3)  # still under way to S1
+    code, text = await _survey_interrupted_at(tmp_path, said("under way to S1"))
     assert code == 3, text
     assert "Ctrl-C: no cast running, the daemon stops" in text
     assert "interrupted before any cast: the probe never left home" in text
@@ -264,7 +350,11 @@ async def test_ctrl_c_before_any_cast_claims_nothing_about_bringing_the_probe_ho
 async def test_a_second_ctrl_c_stops_at_once_and_the_summary_says_the_probe_may_be_down(
     tmp_path: Path,
 ) -> None:
-    code, text = await _survey_interrupted_at(tmp_path, 2.5, 3.0)
+    # The second once the first is heard (two pending at once would be one), with
+    # the probe 1.5 m down: nearly 4 s from home at 0.4 m/s.
+    code, text = await _survey_interrupted_at(
+        tmp_path, probe_down(1.5), said("Ctrl-C: the daemon brings the probe home")
+    )
     assert code == 130, text
     assert "second Ctrl-C: the daemon stops at once" in text
     assert "brought the probe home" not in text
@@ -395,7 +485,7 @@ async def test_simulate_autopilot_on_a_serial_port_against_a_daemon(tmp_path: Pa
         daemon = Daemon(settings)
         daemon_task = asyncio.create_task(daemon.run())
         try:
-            await asyncio.wait_for(daemon.ready.wait(), 10)
+            await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
             out = io.StringIO()
             code = await run_autopilot(
                 AutopilotOnlyOptions(
@@ -410,7 +500,7 @@ async def test_simulate_autopilot_on_a_serial_port_against_a_daemon(tmp_path: Pa
             )
         finally:
             daemon.request_shutdown()
-            await asyncio.wait_for(daemon_task, 10)
+            await asyncio.wait_for(daemon_task, WAIT_S)
             loop.remove_reader(pi_end.master_fd)
             loop.remove_reader(laptop_end.master_fd)
     text = out.getvalue()
@@ -589,7 +679,7 @@ def test_a_reader_that_leaves_mid_cast_does_not_strand_the_probe(tmp_path: Path)
                     break  # the probe is going down: the reader leaves
             proc.stdout.close()
             err = proc.stderr.read().decode()
-            code = proc.wait(timeout=45)
+            code = proc.wait(timeout=START_S + WAIT_S)
         finally:
             if proc.poll() is None:
                 proc.kill()
@@ -599,7 +689,9 @@ def test_a_reader_that_leaves_mid_cast_does_not_strand_the_probe(tmp_path: Path)
     log = db.with_suffix(".log").read_text()
     assert "probe may be down" not in log
     assert "cast finished: probe home, R-F sent" in log
-    events = [json.loads(line)["event"] for line in log.splitlines()]
+    # The daemon's own events: dev mode also has asyncio log each callback a busy
+    # machine made slow ("Executing <Task ...> took 0.379 seconds").
+    events = [e["event"] for e in map(json.loads, log.splitlines()) if e["logger"] != "asyncio"]
     assert events[-1] == "cc-daemon stopped"
     with JournalReader(db) as reader:
         assert [c.outcome for c in reader.casts()] == ["completed"]
@@ -609,7 +701,9 @@ def gpio_mock_pace(cast: dict[str, float], finish_margin_s: float) -> tuple[Sett
     """The GPIO winch on mock pins, and a quick pace with this cast: a winch fault's
     survey in a few seconds."""
     gpio_mock = Settings.model_validate(
-        {"winch": {"backend": "gpio", "gpio": {"pin_factory": "mock"}}}
+        # The loop watchdog at its longest: a loaded machine's pause is not the fault
+        # under test (the stall it would report would change the survey's verdict).
+        {"winch": {"backend": "gpio", "gpio": {"pin_factory": "mock", "loop_watchdog_s": 5.0}}}
     )
     quick = Pace(
         "quick",

@@ -15,7 +15,7 @@ from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig, Phase
 from cc_daemon.sim.commands import add_simulate_arguments, options_from_args
 from cc_daemon.sim.console import SimConsole, summary_lines
 from cc_daemon.sim.mission import make_mission
-from cc_daemon.sim.nextsteps import live_steps, next_steps, program
+from cc_daemon.sim.nextsteps import live_steps, next_steps, profile_steps, program
 from cc_daemon.sim.options import FAST, REALTIME, SimOptions, pace_changes
 from cc_daemon.sim.runner import _headline
 from cc_daemon.sim.session import PROGRESS_EVERY_S, Run
@@ -128,6 +128,10 @@ def test_the_header_lists_what_the_fast_pace_changed_and_real_pace_keeps_it() ->
     assert "cast.soak_s 3 -> 0" in changes
     assert "cast.dwell_s 2 -> 1" in changes
     assert "winch.sim.speed_m_s 0.25 -> 1.25" in changes
+    # Its casts are not slowed for the profile: bins as thick as a reading's travel.
+    assert "profile.bin_m 0.25 -> 1.25" in changes
+    assert "profile.min_count 2 -> 1" in changes
+    assert "profile.resolve [temperature] -> []" in changes
     assert pace_changes(SimOptions(settings=mine, realtime=True)) == []
     mission = make_mission(2, 1)
     head = _headline(SimOptions(settings=mine), mission).splitlines()
@@ -135,10 +139,16 @@ def test_the_header_lists_what_the_fast_pace_changed_and_real_pace_keeps_it() ->
     assert "cast.soak_s 3 -> 0" in head[1]
     assert head[1].endswith("(--pace real keeps them)")
     real = _headline(SimOptions(settings=mine, realtime=True), mission).splitlines()
-    assert real[1] == "  real pace: boat 1.5 m/s; your winch and cast settings as configured"
+    assert (
+        real[1] == "  real pace: boat 1.5 m/s; your winch, cast and profile settings as configured"
+    )
     # Settings that already agree with the pace are not reported as changed.
     same = Settings.model_validate(
-        {"cast": dict(FAST.cast), "winch": {"sim": {"speed_m_s": FAST.winch_speed_m_s}}}
+        {
+            "cast": dict(FAST.cast),
+            "winch": {"sim": {"speed_m_s": FAST.winch_speed_m_s}},
+            "profile": {"bin_m": 1.25, "min_count": 1, "resolve": []},
+        }
     )
     assert pace_changes(SimOptions(settings=same)) == []
 
@@ -191,6 +201,12 @@ def test_next_steps_are_runnable_as_printed(tmp_path: Path) -> None:
     elsewhere = next_steps(Path("/data/a b.db"), None, argv0=str(venv_program), cwd=tmp_path)
     assert elsewhere[0] == ".venv/bin/cc-daemon casts --db '/data/a b.db'"
     assert not any(step.startswith("make") for step in elsewhere)
+    profiles = profile_steps(tmp_path / "simulate.db", argv0=str(venv_program), cwd=tmp_path)
+    assert profiles[0] == ".venv/bin/cc-daemon profiles --db simulate.db -o simulate-profiles"
+    assert profiles[1].startswith("  makes simulate-profiles/: profiles.nc and profiles.csv")
+    assert profile_steps(Path("/data/a b.db"), argv0=str(venv_program), cwd=tmp_path)[0] == (
+        ".venv/bin/cc-daemon profiles --db '/data/a b.db' -o '/data/a b-profiles'"
+    )
 
 
 def test_the_headline_counts_stations_in_english() -> None:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import structlog
 
 from cc_daemon.config import Settings
 from cc_daemon.core.protocol import Ack, DepthReport, Finished
@@ -48,6 +49,8 @@ class Rig:
         base = merge(FAST_CAST, {"serial": {"port": str(self.pty.path)}})
         base = merge(base, {"store": {"path": str(self.db)}, "sonde": FAST_SONDE})
         base = merge(base, {"sonde": {"port": str(sonde_path)}})
+        # Casts at the winch's own speed (the profile's limit: tests/test_cast_resolution.py).
+        base = merge(base, {"profile": {"bin_m": 5.0, "min_count": 1, "resolve": []}})
         self.settings = Settings.model_validate(merge(base, config))
         self.daemon = Daemon(self.settings)
         self.sonde = SimulatedSonde(sonde_path, line_out=self._line_out, model=model)
@@ -168,3 +171,35 @@ async def test_bottom_contact_stops_the_descent(make_rig: Any) -> None:
     # depth_source = "sonde": R-M says where the probe is, not how much line is out.
     reported = [m.depth_mm for m in messages if isinstance(m, DepthReport)]
     assert max(reported) <= 1600
+
+
+async def test_a_cast_with_a_sonde_descends_no_faster_than_its_profile_resolves(
+    make_rig: Any,
+) -> None:
+    # 1.5 m bins, temperature's 2 s: 0.75 m/s, under the winch's 1 m/s (issue 28).
+    config = {"profile": {"bin_m": 1.5, "min_count": 1, "resolve": ["temperature"]}}
+    rig, port = await make_rig(config, SondeModel())
+    with structlog.testing.capture_logs() as logs:
+        task = asyncio.create_task(rig.daemon.run())
+        await asyncio.wait_for(rig.daemon.ready.wait(), 30)
+    said = [e["event"] for e in logs if e["event"].startswith("profile resolution")]
+    assert said == [
+        "profile resolution: continuous casts descend at 0.75 m/s (limit 0.75 m/s from 1.5 m "
+        "bins, temperature 2 s, >= 1 readings a bin; winch 1 m/s): 4.0 readings a bin; lags "
+        "at that speed: temperature 1.50 m, ph 3.00 m, do_saturation 6.00 m, "
+        "do_concentration 6.00 m"
+    ]
+    await port.send(station())
+    messages = await rig.finished(port, 90)
+    rig.daemon.request_shutdown()
+    assert await asyncio.wait_for(task, 30) == EXIT_OK
+    assert isinstance(messages[-1], Finished)
+    with JournalReader(rig.db) as reader:
+        (cast,) = reader.casts()
+        down = [s for s in reader.samples(cast_id=cast.id) if s.phase == "descending"]
+    assert cast.plan["profile"]["descent_limit_m_s"] == 0.75
+    assert cast.plan["legs"][0]["max_speed_m_s"] == 0.75
+    moving = [s for s in down if 0.0 < s.depth_m < 3.0]
+    assert len(moving) >= 2
+    speed = (moving[-1].depth_m - moving[0].depth_m) / (moving[-1].mono_s - moving[0].mono_s)
+    assert speed == pytest.approx(0.75, rel=0.05)  # the winch alone runs 1 m/s

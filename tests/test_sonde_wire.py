@@ -42,7 +42,7 @@ from cc_daemon.drivers.sonde.reader import (
 )
 from cc_daemon.sim.pty import make_raw
 
-S = 4.0  # the scenarios' time scale: a time-out of 0.1 s becomes 0.1 * S
+S = 6.0  # the scenarios' time scale: a time-out of 0.1 s becomes 0.1 * S
 
 
 def crc(frame: bytes) -> bytes:

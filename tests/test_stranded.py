@@ -25,12 +25,13 @@ from cc_daemon.sim.drum import DrumFaults
 from cc_daemon.sim.port import FramePort, Received
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.store import Journal
-from tests.daemonkit import station
+from tests.daemonkit import WAIT_S, collect_until, next_frame, nth, station
 from tests.gpiokit import gpio_rig
 from tests.test_gpio_daemon import Boat, _boat, _settings
+from tests.waitkit import until
 
 
-async def _until(boat: Boat, phase: str, timeout: float) -> list[Received]:
+async def _until(boat: Boat, phase: str, timeout: float = WAIT_S) -> list[Received]:
     frames: list[Received] = []
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline and boat.daemon.snapshot().phase != phase:
@@ -52,12 +53,14 @@ async def test_stranded_hauling_in_sends_r_l_until_the_stick_brings_it_home(
     async with gpio_rig(faults=DrumFaults(jam_in_at_m=1.5)) as rig, _boat(tmp_path, rig) as boat:
         with structlog.testing.capture_logs() as logs:
             await boat.port.send(station())
-            before = await _until(boat, "stranded", 15)
+            before = await _until(boat, "stranded")
             assert not any(isinstance(r.message, Finished) for r in before)
-            stranded = [await boat.port.receive(1.5) for _ in range(3)]
-            # In place of R-M: R-L every period, carrying the depth the probe is stuck at.
-            faults = [r.message for r in stranded if r is not None]
-            assert faults and all(isinstance(m, FaultReport) for m in faults)
+            stranded = await collect_until(boat.port, nth(FaultReport, 3))
+            # In place of R-M: R-L every period, carrying the depth the probe is stuck at
+            # (an R-M sent before the stranding may still have been on its way).
+            faults = [r.message for r in stranded]
+            faults = faults[[type(m) for m in faults].index(FaultReport) :]
+            assert len(faults) == 3 and all(isinstance(m, FaultReport) for m in faults)
             assert all(1300 <= m.depth_mm <= 1700 for m in faults)  # type: ignore[union-attr]
             doc: dict[str, Any] = status_document(boat.daemon.status_inputs())
             reported = doc["cast"]["fault_reported"]
@@ -68,7 +71,7 @@ async def test_stranded_hauling_in_sends_r_l_until_the_stick_brings_it_home(
             # The line is freed; the safety pilot holds the stick up: home, then R-F, depth 0.
             rig.drum.faults = DrumFaults()
             finished: Finished | None = None
-            deadline = time.monotonic() + 15
+            deadline = time.monotonic() + WAIT_S
             while finished is None and time.monotonic() < deadline:
                 await boat.port.send(ProbeUp(7))
                 got = await boat.port.receive(0.5)
@@ -79,7 +82,7 @@ async def test_stranded_hauling_in_sends_r_l_until_the_stick_brings_it_home(
             assert finished is not None and finished.depth_mm == 0
             assert rig.winch.status().at_home
             boat.daemon.request_shutdown()
-            assert await asyncio.wait_for(boat.task, 10) == EXIT_OK
+            assert await asyncio.wait_for(boat.task, WAIT_S) == EXIT_OK
     criticals = [e for e in logs if e["log_level"] == "critical"]
     assert any("PROBE NOT HOME" in e["event"] for e in criticals)
     kinds = [kind for kind, _ in _events(tmp_path)]
@@ -98,21 +101,22 @@ async def test_a_winch_that_failed_to_home_refuses_every_cast_with_r_l(tmp_path:
         status = rig.winch.status()
         assert status.fault is not None and not status.at_home
         await boat.port.send(station())
-        first = await boat.port.receive(1.0)
-        second = await boat.port.receive(0.5)
-        assert first is not None and first.message == Ack(100)
+        first = await next_frame(boat.port)
+        second = await next_frame(boat.port)
+        assert first.message == Ack(100)
         # R-O, then the fault at once: no cast, the motor never runs.
-        assert second is not None and isinstance(second.message, FaultReport)
-        more = [await boat.port.receive(1.5) for _ in range(2)]
-        assert all(r is not None and isinstance(r.message, FaultReport) for r in more)
+        assert isinstance(second.message, FaultReport)
+        more = [await next_frame(boat.port) for _ in range(2)]
+        assert all(isinstance(r.message, FaultReport) for r in more)
         assert rig.drum.motor() == (0, 0.0)
         assert boat.daemon.snapshot().phase == "stranded"
-        # The autopilot asks where the probe is: answered; a second M starts nothing.
+        # The autopilot asks where the probe is: answered; a second M starts nothing
+        # (the R-L of the period may come before the answer).
         await boat.port.send(station(timestamp=130))
-        again = await boat.port.receive(1.0)
-        assert again is not None and again.message == Ack(130)
+        again = await collect_until(boat.port, lambda m: not isinstance(m, FaultReport))
+        assert again[-1].message == Ack(130)
         boat.daemon.request_shutdown()
-        assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+        assert await asyncio.wait_for(boat.task, WAIT_S) == EXIT_PROBE_MAY_BE_DOWN
     received = [r.message for r in boat.port.received]
     assert not any(isinstance(m, Finished | DepthReport) for m in received)
     kinds = [kind for kind, _ in _events(tmp_path)]
@@ -140,28 +144,24 @@ async def test_an_operator_releases_a_station_the_winch_cannot_verify(tmp_path: 
             daemon = Daemon(settings, winch=rig.winch)
             port = await FramePort.over_fd(pty.master_fd)
             task = asyncio.create_task(daemon.run())
-            await asyncio.wait_for(daemon.ready.wait(), 5)
+            await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
             boat = Boat(daemon, port, task)
             reason = "probe seen on deck \x1b]0;pwned\x07 \u202eevil"
             args = ["release", "--reason", reason, "--socket", str(control)]
-            for _ in range(50):  # the control socket is bound by its own task
-                if control.exists():
-                    break
-                await asyncio.sleep(0.05)
+            # The control socket is bound by its own task.
+            await until(control.exists, what="the control socket bound")
             assert oct(control.stat().st_mode & 0o777) == "0o660"
             # Nothing stranded yet: refused, and nothing is sent.
             assert await asyncio.to_thread(main, args) == 1
             await port.send(station())
-            await _until(boat, "stranded", 15)
+            await _until(boat, "stranded")
             assert await asyncio.to_thread(main, args) == 0
-            got = await port.receive(3.0)
-            while got is not None and not isinstance(got.message, Finished):
-                got = await port.receive(3.0)
-            assert got is not None and got.message.depth_mm == 0  # type: ignore[union-attr]
+            got = await next_frame(port, Finished)
+            assert got.message.depth_mm == 0  # type: ignore[union-attr]
             assert daemon.snapshot().phase == "idle"
             daemon.request_shutdown()
             # The winch still cannot verify home: the exit says so.
-            assert await asyncio.wait_for(task, 10) == EXIT_PROBE_MAY_BE_DOWN
+            assert await asyncio.wait_for(task, WAIT_S) == EXIT_PROBE_MAY_BE_DOWN
             await port.close()
     kept = "probe seen on deck \\x1b]0;pwned\\x07 \\u202eevil"
     events = dict(_events(tmp_path))
@@ -196,11 +196,11 @@ async def test_a_restart_that_cannot_verify_home_holds_the_interrupted_station_w
         _boat(tmp_path, rig) as boat,
     ):
         # No M comes: the firmware is still waiting at the station. R-L, never R-F.
-        got = [await boat.port.receive(1.5) for _ in range(2)]
-        assert all(r is not None and isinstance(r.message, FaultReport) for r in got)
+        got = [await next_frame(boat.port) for _ in range(2)]
+        assert all(isinstance(r.message, FaultReport) for r in got)
         assert boat.daemon.snapshot().phase == "stranded"
         boat.daemon.request_shutdown()
-        assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+        assert await asyncio.wait_for(boat.task, WAIT_S) == EXIT_PROBE_MAY_BE_DOWN
     assert not any(isinstance(r.message, Finished) for r in boat.port.received)
     events = _events(tmp_path)
     kinds = [kind for kind, _ in events]
@@ -227,23 +227,25 @@ async def test_winch_home_with_the_daemon_running_hauls_a_stranded_probe_in(
             daemon = Daemon(settings, winch=rig.winch)
             port = await FramePort.over_fd(pty.master_fd)
             task = asyncio.create_task(daemon.run())
-            await asyncio.wait_for(daemon.ready.wait(), 5)
+            await asyncio.wait_for(daemon.ready.wait(), WAIT_S)
             args = ["winch", "home", "--config", str(config)]
             await port.send(station())
-            await _until(Boat(daemon, port, task), "stranded", 15)
+            await _until(Boat(daemon, port, task), "stranded")
             # Still jammed: the daemon tries, stalls again, stays stranded; no R-F.
+            stalls = rig.kinds().count("winch_fault")
             assert await asyncio.to_thread(main, args) == 0
-            await asyncio.sleep(1.5)
+            await until(
+                lambda: rig.kinds().count("winch_fault") > stalls and not rig.winch.status().moving,
+                what="the haul stalled again",
+            )
             assert daemon.snapshot().phase == "stranded"
             rig.drum.faults = DrumFaults()  # the line freed
             assert await asyncio.to_thread(main, args) == 0
-            got = await port.receive(5.0)
-            while got is not None and not isinstance(got.message, Finished):
-                got = await port.receive(5.0)
-            assert got is not None and got.message.depth_mm == 0  # type: ignore[union-attr]
+            got = await next_frame(port, Finished)
+            assert got.message.depth_mm == 0  # type: ignore[union-attr]
             assert rig.winch.status().at_home
             daemon.request_shutdown()
-            assert await asyncio.wait_for(task, 10) == EXIT_OK
+            assert await asyncio.wait_for(task, WAIT_S) == EXIT_OK
             await port.close()
     kinds = [kind for kind, _ in _events(tmp_path)]
     assert kinds.count("operator_haul_in") == 2 and "stranded_cleared" in kinds
@@ -280,15 +282,15 @@ async def test_a_restart_with_a_shorted_switch_and_the_probe_down_sends_no_r_f(
         gpio_rig(line_m=2.0, start_up=False, faults=DrumFaults(switch_stuck_closed=True)) as rig,
         _boat(tmp_path, rig) as boat,
     ):
-        got = [await boat.port.receive(1.5) for _ in range(2)]
-        assert all(r is not None and isinstance(r.message, FaultReport) for r in got)
+        got = [await next_frame(boat.port) for _ in range(2)]
+        assert all(isinstance(r.message, FaultReport) for r in got)
         status = rig.winch.status()
         assert not status.at_home and status.depth_m == pytest.approx(2.0)
         assert status.fault is not None and "cannot be home" in status.fault
         assert rig.drum.motor() == (0, 0.0)
         assert ("winch_left_down", {"left_down_m": 2.0}) in rig.events
         boat.daemon.request_shutdown()
-        assert await asyncio.wait_for(boat.task, 10) == EXIT_PROBE_MAY_BE_DOWN
+        assert await asyncio.wait_for(boat.task, WAIT_S) == EXIT_PROBE_MAY_BE_DOWN
     assert not any(isinstance(r.message, Finished) for r in boat.port.received)
     recovered = json.loads(dict(_events(tmp_path))["cast_recovered"])
     assert recovered == {"cast_id": cast_id, "rf_sent": False, "held_by_r_l": True}
@@ -301,10 +303,10 @@ async def test_a_restart_with_the_probe_down_hauls_it_home_and_then_sends_r_f(
     # switch closes at the end of a counted haul, and only then the station is freed.
     cast_id = _died_mid_cast(tmp_path, 2.0)
     async with gpio_rig(line_m=2.0, start_up=False) as rig, _boat(tmp_path, rig) as boat:
-        got = await boat.port.receive(10)
-        assert got is not None and isinstance(got.message, Finished)
+        got = await next_frame(boat.port)
+        assert isinstance(got.message, Finished)
         assert rig.winch.status().at_home and rig.drum.line_m < 0.1
         boat.daemon.request_shutdown()
-        assert await asyncio.wait_for(boat.task, 10) == EXIT_OK
+        assert await asyncio.wait_for(boat.task, WAIT_S) == EXIT_OK
     recovered = json.loads(dict(_events(tmp_path))["cast_recovered"])
     assert recovered == {"cast_id": cast_id, "rf_sent": True}

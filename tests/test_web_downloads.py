@@ -28,6 +28,7 @@ from cc_daemon.cli.web.server import Sources
 from cc_daemon.export import geojson
 from cc_daemon.store import CastRecord, FixRecord, JournalReader
 from tests import webkit
+from tests.waitkit import until_sync
 from tests.webkit import WebProcess
 
 SURVEY = 2
@@ -215,7 +216,9 @@ def test_a_stop_in_the_middle_of_a_netcdf_download_removes_its_temporary_file(
             f"GET /download/survey/{SURVEY}.nc HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode()
         )
         assert client.recv(12) == b"HTTP/1.1 200"  # under way; then read no more
-        assert list(temporary.iterdir()), "the NetCDF file is written first"
+        # The NetCDF file is being written (its writer's thread may start after the
+        # answer's first line goes out).
+        until_sync(lambda: any(temporary.iterdir()), what="the NetCDF file begun")
         web.proc.terminate()
         assert web.proc.wait(30) == 0
     assert list(temporary.iterdir()) == []

@@ -6,6 +6,7 @@
     cc-daemon casts | export | plot          the survey journal
     cc-daemon snapshot DEST                  a consistent copy of the journal, even while running
     cc-daemon sonde export | plot            the sonde's readings and profiles
+    cc-daemon profiles -o DIR                binned profiles, stations, plots, sections
     cc-daemon simulate-autopilot --port P    the simulated autopilot alone, on a real port
     cc-daemon status [--json|--watch]        ask the running daemon what it is doing
     cc-daemon doctor                         check this Pi is ready to run the service
@@ -173,12 +174,14 @@ _COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("status",), "cc_daemon.cli.status.command", "add_commands"),
     (("doctor",), "cc_daemon.cli.doctor.command", "add_commands"),
     (("sonde",), "cc_daemon.cli.sonde", "add_command"),
+    (("profiles",), "cc_daemon.cli.profiles", "add_command"),
     (("simulate-sonde",), "cc_daemon.sim.sondecli", "add_command"),
     (("winch",), "cc_daemon.cli.winch", "add_command"),
     (("release",), "cc_daemon.cli.release", "add_command"),
     (("recover",), "cc_daemon.cli.recover", "add_command"),
     (("web",), "cc_daemon.cli.web.command", "add_command"),
     (("simulate-sonar",), "cc_daemon.sim.sonar_cli", "add_commands"),
+    (("map",), "cc_daemon.cli.mapcmd", "add_command"),
 )
 _HELP = ("-h", "--help")
 

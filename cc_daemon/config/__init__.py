@@ -20,6 +20,7 @@ from cc_daemon.config.loading import (
     FLAG_NAMES,
     load_settings,
 )
+from cc_daemon.config.profile import ProfileSettings
 from cc_daemon.config.rules import STANDARD_BAUDRATES
 from cc_daemon.config.schema import (
     CastSettings,
@@ -30,10 +31,8 @@ from cc_daemon.config.schema import (
     StatusSettings,
     StoreSettings,
     WebSettings,
-    WinchGpioSettings,
-    WinchSettings,
-    WinchSimSettings,
 )
+from cc_daemon.config.winch import WinchGpioSettings, WinchSettings, WinchSimSettings
 
 __all__ = [
     "DEFAULT_SEARCH_PATHS",
@@ -43,6 +42,7 @@ __all__ = [
     "STANDARD_BAUDRATES",
     "CastSettings",
     "LogSettings",
+    "ProfileSettings",
     "SerialSettings",
     "Settings",
     "SonarSettings",

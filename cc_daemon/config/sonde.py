@@ -91,6 +91,9 @@ class SondeParameter(BaseModel):
     long_name: Annotated[str, Field(min_length=1)]
     # The CF standard name, where one exists for this quantity in this unit.
     standard_name: Annotated[str | None, BeforeValidator(lambda v: None if v == "" else v)] = None
+    # The sensor's first-order response time (s): 0 for one faster than a reading.
+    # The cast plan honours it ([profile] resolve) and the profiles correct it.
+    response_s: Annotated[float, Field(ge=0.0, le=600.0)] = 0.0
 
     @model_validator(mode="after")
     def _one_place(self) -> Self:
@@ -125,20 +128,20 @@ DEFAULT_PARAMETERS: tuple[SondeParameter, ...] = (
     ),
     SondeParameter(
         name="temperature", modicon=40029, unit="degC", long_name="water temperature",
-        standard_name="sea_water_temperature",
+        standard_name="sea_water_temperature", response_s=2.0,
     ),
     SondeParameter(
         name="ph", modicon=40031, unit="1", long_name="pH",
-        standard_name="sea_water_ph_reported_on_total_scale",
+        standard_name="sea_water_ph_reported_on_total_scale", response_s=4.0,
     ),
     SondeParameter(
         name="do_saturation", modicon=40033, unit="%",
         long_name="dissolved oxygen saturation",
-        standard_name="fractional_saturation_of_oxygen_in_sea_water",
+        standard_name="fractional_saturation_of_oxygen_in_sea_water", response_s=8.0,
     ),
     SondeParameter(
         name="do_concentration", modicon=40035, unit="mg/L", long_name="dissolved oxygen",
-        standard_name="mass_concentration_of_oxygen_in_sea_water",
+        standard_name="mass_concentration_of_oxygen_in_sea_water", response_s=8.0,
     ),
     SondeParameter(
         name="blue", modicon=40037, unit="RFU",

@@ -44,7 +44,13 @@ from cc_daemon.core.cast.stations import StationMemory
 from cc_daemon.core.cast.timestamps import AutopilotTime
 from cc_daemon.core.protocol import Finished, StartMeasuring, as_dict, encode
 from cc_daemon.core.protocol.messages import CcMessage, DepthReport, FaultReport
-from cc_daemon.core.winch.status import ApproachSpeed, Winch, WinchStatus, verified_home
+from cc_daemon.core.winch.status import (
+    ApproachSpeed,
+    LimitedSpeed,
+    Winch,
+    WinchStatus,
+    verified_home,
+)
 from cc_daemon.daemon.line_watch import LineWatch
 from cc_daemon.daemon.sonde import SondeDuty
 from cc_daemon.daemon.systemd import SystemdNotifier
@@ -72,6 +78,7 @@ class ActiveCast:
         self.task: asyncio.Task[None] | None = None
         self.reports = 0
         self.told_no_approach_speed = False  # said once a cast (`CastRunner._move`)
+        self.told_no_speed_limit = False  # said once a cast (`CastRunner._move`)
         self.fault_reports = 0  # R-L sent for this station
         # Set when the cast can make no progress without an operator: the probe
         # is stranded, or the cast task failed. Shutdown stops waiting then.
@@ -280,10 +287,10 @@ class CastRunner:
             action = queue.pop(0)
             now = self._clock.monotonic()
             match action:
-                case CommandWinch(depth_m=depth, slow=slow):
+                case CommandWinch(depth_m=depth, slow=slow, max_speed_m_s=limit):
                     commanded = True
                     try:
-                        self._move(cast, depth, slow=slow)
+                        self._move(cast, depth, slow=slow, max_speed_m_s=limit)
                     except Exception as exc:
                         _log.error("winch command failed", depth_m=depth, error=str(exc))
                         queue.extend(cast.machine.winch_error(now, f"{type(exc).__name__}: {exc}"))
@@ -311,11 +318,25 @@ class CastRunner:
                     _log.critical(message, cast_id=cast.cast_id)
         return commanded
 
-    def _move(self, cast: ActiveCast, depth_m: float, *, slow: bool) -> None:
-        """Run the winch to `depth_m`; `slow`: at its approach speed where it has one."""
+    def _move(
+        self, cast: ActiveCast, depth_m: float, *, slow: bool, max_speed_m_s: float | None
+    ) -> None:
+        """Run the winch to `depth_m`; `slow`: at its approach speed where it has one;
+        `max_speed_m_s`: no faster, where it can be told (a profile's descent)."""
         winch = self._winch
         assert winch is not None
-        if not slow:
+        if not slow and max_speed_m_s is not None and isinstance(winch, LimitedSpeed):
+            winch.move_at_most(depth_m, max_speed_m_s)
+        elif not slow:
+            if max_speed_m_s is not None and not cast.told_no_speed_limit:
+                cast.told_no_speed_limit = True
+                _log.warning(
+                    "this winch runs at one speed: descending faster than the profile's "
+                    "resolution asks",
+                    cast_id=cast.cast_id,
+                    max_speed_m_s=round(max_speed_m_s, 4),
+                    backend=self.settings.winch.backend,
+                )
             winch.move_to(depth_m)
         elif isinstance(winch, ApproachSpeed):
             winch.move_slowly_to(depth_m)

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import structlog
 
 from cc_daemon.config import Settings
+from cc_daemon.config.resolution import cast_resolution, describe_resolution
 from cc_daemon.core.cast.jog import Stick
 from cc_daemon.core.cast.machine import (
     CastMachine,
@@ -193,6 +194,10 @@ class Daemon(CastRunner):
             winch=self.settings.winch.backend,
             store=str(self._journal.path),
         )
+        resolution = describe_resolution(self.settings)
+        if resolution is not None:  # what the casts can resolve (docs/profiles.md)
+            line, short = resolution
+            (_log.warning if short else _log.info)("profile resolution: " + line)
         gc.freeze()  # start-up's objects live on: a full collection skips them (performance.md)
         try:
             # A probe left down (a crash, a power cut) comes home before READY.
@@ -545,7 +550,12 @@ class Daemon(CastRunner):
             bottom = self.sonar.station_for_plan(
                 station, now, self.settings.cast.min_sonar_confidence
             )
-        plan = plan_cast(bottom, self.settings.cast, self.settings.winch.max_line_m)
+        plan = plan_cast(
+            bottom,
+            self.settings.cast,
+            self.settings.winch.max_line_m,
+            cast_resolution(self.settings),
+        )
         if isinstance(plan, SkipCast):
             self._skip_cast(station, plan, now, status)
         else:

@@ -143,6 +143,7 @@ class SondeDuty:
                 backend=self.settings.sonde.backend,
                 port=self.reader.settings.port,
                 slave_id=self.settings.sonde.slave_id,
+                depth_parameter=self.settings.sonde.depth_parameter,
                 parameters=[
                     p.model_dump(by_alias=True, mode="json") for p in self.settings.sonde.parameters
                 ],

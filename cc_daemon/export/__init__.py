@@ -16,7 +16,7 @@ import sys
 from cc_daemon.core.errors import CcDaemonError
 
 # What each extra installs (as pyproject.toml's [project.optional-dependencies] says).
-REQUIREMENTS = {"plot": "matplotlib>=3.8", "netcdf": "netCDF4>=1.6"}
+REQUIREMENTS = {"plot": "matplotlib>=3.8", "netcdf": "netCDF4>=1.6", "science": "numpy>=1.26"}
 
 
 class OptionalDependencyError(CcDaemonError):

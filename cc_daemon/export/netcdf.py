@@ -105,14 +105,7 @@ def write(
     counts = Counter(s.cast_id for s in kept)
 
     with netCDF4.Dataset(str(path), "w", format="NETCDF4_CLASSIC") as nc:
-        nc.Conventions = "CF-1.8"
-        nc.featureType = "profile"
-        nc.cdm_data_type = "Profile"
-        nc.title = "Probe casts of an autonomous survey boat"
-        nc.source = f"cc-daemon {__version__} survey journal"
-        created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-        nc.date_created = created
-        nc.history = f"{created} written by cc-daemon {__version__} export --format netcdf"
+        profile_globals(nc, "Probe casts of an autonomous survey boat", "export --format netcdf")
         nc.comment = (
             "Times are the companion computer's wall clock; clock_synced = 0 marks"
             " profiles recorded before the clock was synchronised. Positions are the"
@@ -232,6 +225,19 @@ def _write_sonar(nc: Any, readings: Sequence[SonarReadingRecord]) -> None:
         comment="invalid: confidence above 100, or a distance of 1 km or more",
         coordinates="sonar_time",
     )[:] = [int(r.valid) for r in readings]  # fmt: skip
+
+
+def profile_globals(nc: Any, title: str, command: str) -> None:
+    """The global attributes every CF profile file here starts with: the conventions,
+    the feature type, `title`, the source, and its creation by `cc-daemon <command>`."""
+    nc.Conventions = "CF-1.8"
+    nc.featureType = "profile"
+    nc.cdm_data_type = "Profile"
+    nc.title = title
+    nc.source = f"cc-daemon {__version__} survey journal"
+    created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    nc.date_created = created
+    nc.history = f"{created} written by cc-daemon {__version__} {command}"
 
 
 def profile_file(

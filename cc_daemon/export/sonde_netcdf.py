@@ -31,7 +31,7 @@ from cc_daemon.store.sonde import SondeSampleRecord
 PHASE_FLAGS = ("soaking", "descending", "dwelling", "ascending", "aborting", "stranded")
 BYTE_FILL = -127
 # UDUNITS spellings for the units a sonde map is likely to use.
-_CF_UNITS = {"%": "percent", "mg/L": "mg L-1", "ug/L": "ug L-1", "µg/L": "ug L-1"}
+CF_UNITS = {"%": "percent", "mg/L": "mg L-1", "ug/L": "ug L-1", "µg/L": "ug L-1"}
 
 
 def _nan(value: float | None) -> float:
@@ -119,7 +119,7 @@ def write(
             attrs: dict[str, Any] = {
                 "_FillValue": math.nan,
                 "long_name": c.long_name,
-                "units": _CF_UNITS.get(c.unit, c.unit),
+                "units": CF_UNITS.get(c.unit, c.unit),
                 "coordinates": "time lat lon depth",
             }
             if c.standard_name and name == c.name:  # `depth` is the coordinate's already

@@ -9,4 +9,9 @@ service.
 
 - `hypsography`: a lake's area and volume at each depth, the one value the two
   halves share (the bathymetry makes it; Schmidt stability reads it).
+- `profiles`: a sonde's cast made into binned, lag-corrected profiles, and what is
+  read from them (docs/profiles.md).
+- `limnology`: rLakeAnalyzer's definitions (density, thermocline, metalimnion,
+  Schmidt stability) and the chlorophyll and oxygen features.
+- `interpolation`: R's linear interpolation and sequences, as the reference uses them.
 """

@@ -38,3 +38,45 @@ class Hypsography:
             raise ValueError("areas must be >= 0 and never grow with depth")
         if not 0.0 < self.covered_fraction <= 1.0:
             raise ValueError("covered_fraction must be in (0, 1]")
+
+    @classmethod
+    def from_depths(
+        cls,
+        depth_m: FloatArray,
+        cell_area_m2: float,
+        interval_m: float,
+        covered_fraction: float = 1.0,
+    ) -> Hypsography:
+        """The hypsography of a gridded bed: `depth_m` one depth per cell of `cell_area_m2`
+        (NaN: a cell not mapped, left out), at 0, `interval_m`, 2 `interval_m`, ... down
+        to the first depth at or below the deepest cell (where the area is 0). The area at
+        each depth is the cells deeper than it (at 0: every mapped cell); the volume below
+        it, the water between its plane and the bed, cell by cell."""
+        if interval_m <= 0 or cell_area_m2 <= 0:
+            raise ValueError("the interval and the cell's area must be > 0")
+        bed = np.asarray(depth_m, dtype=np.float64)
+        bed = np.clip(bed[np.isfinite(bed)], 0.0, None)
+        deepest = float(bed.max()) if len(bed) else 0.0
+        steps = max(int(np.ceil(deepest / interval_m - 1e-9)), 1)
+        depths = np.arange(steps + 1) * interval_m
+        ordered = np.sort(bed)
+        below = len(ordered) - np.searchsorted(ordered, depths, side="right")  # deeper than z
+        area = below * cell_area_m2
+        area[0] = len(ordered) * cell_area_m2
+        # Sum over cells deeper than z of (d - z): suffix sums of the sorted depths.
+        suffix = np.concatenate([np.cumsum(ordered[::-1])[::-1], [0.0]])
+        first = len(ordered) - below
+        volume = (suffix[first] - below * depths) * cell_area_m2
+        return cls(
+            depths.astype(np.float64),
+            area.astype(np.float64),
+            volume.astype(np.float64),
+            covered_fraction,
+        )
+
+    def rows(self) -> list[tuple[float, float, float]]:
+        """(depth m, area m², volume m³) per depth, as the CSV `depth_m,area_m2,volume_m3`."""
+        return [
+            (float(d), float(a), float(v))
+            for d, a, v in zip(self.depth_m, self.area_m2, self.volume_m3, strict=True)
+        ]

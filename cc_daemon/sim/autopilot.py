@@ -170,6 +170,14 @@ class Autopilot:
         self._advance(now)
         return self._position
 
+    def to_go_m(self, now: float) -> float:
+        """How far the boat still has to sail to the station it is going to."""
+        self._advance(now)
+        if self.phase is not Phase.CRUISING or self._leg_started_at is None:
+            return 0.0
+        travelled = (now - self._leg_started_at) * self.config.boat_speed_m_s
+        return self.mission.leg_length_m(self.index) - travelled
+
     @property
     def problems(self) -> list[Violation]:
         return [v for v in self.violations if not v.excused]
@@ -267,13 +275,11 @@ class Autopilot:
         if self.phase is not Phase.CRUISING or self._leg_started_at is None:
             return
         travelled = (now - self._leg_started_at) * self.config.boat_speed_m_s
-        begin, end = self.mission.leg(self.index)
-        length = begin.distance_to(end)
+        length = self.mission.leg_length_m(self.index)
         if travelled < length:
-            self._position = begin.towards(end, travelled)
+            self._position = self.mission.along_leg(self.index, travelled)
             return
-        self._position = end
-        self.phase = Phase.REQUESTING
+        self._position, self.phase = self.mission.leg(self.index)[1], Phase.REQUESTING
         if self.index == self._jog_index:
             self.phase = Phase.JOGGING
             self._jog_frames = [kind for kind, n in self.config.jog_script for _ in range(n)]

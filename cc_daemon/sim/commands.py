@@ -13,10 +13,11 @@ import sys
 from typing import TYPE_CHECKING
 
 from cc_daemon.sim.autopilot import FIRMWARES
-from cc_daemon.sim.mission import make_mission
+from cc_daemon.sim.lines import DEFAULT_LINE_LENGTH_M, DEFAULT_LINES, DEFAULT_SPACING_M
 from cc_daemon.sim.options import (
     FAST,
     PACES,
+    PATTERNS,
     REALTIME,
     STALL_AT_M,
     AutopilotOnlyOptions,
@@ -42,6 +43,13 @@ def _count(text: str) -> int:
     value = int(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text}: at least 1")
+    return value
+
+
+def _metres(text: str) -> float:
+    value = float(text)
+    if not 0 < value <= 10_000:
+        raise argparse.ArgumentTypeError(f"{text}: metres, > 0 and at most 10000")
     return value
 
 
@@ -148,6 +156,26 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-sonar", action="store_true", help="no Ping1D: the autopilot makes its readings up"
     )
     group.add_argument("--plain", action="store_true", help="plain log lines even on a terminal")
+    group.add_argument(
+        "--pattern",
+        choices=PATTERNS,
+        default="stations",
+        help="stations (the default): a meandering transit from station to station; lines: "
+        "parallel lines for bathymetry, sailed at 1.5 m/s whatever the pace, the stations "
+        "spread along them (then `cc-daemon map`)",
+    )
+    group.add_argument(
+        "--spacing", type=_metres, default=DEFAULT_SPACING_M, metavar="M",
+        help=f"with --pattern lines: metres between lines ({DEFAULT_SPACING_M:g})",
+    )  # fmt: skip
+    group.add_argument(
+        "--lines", type=_count, default=DEFAULT_LINES, metavar="N",
+        help=f"with --pattern lines: how many ({DEFAULT_LINES})",
+    )  # fmt: skip
+    group.add_argument(
+        "--line-length", type=_metres, default=DEFAULT_LINE_LENGTH_M, metavar="M",
+        help=f"with --pattern lines: each line's length ({DEFAULT_LINE_LENGTH_M:g} m)",
+    )  # fmt: skip
 
 
 def options_from_args(args: argparse.Namespace, settings: Settings | None) -> SimOptions:
@@ -172,6 +200,10 @@ def options_from_args(args: argparse.Namespace, settings: Settings | None) -> Si
         settings=settings,
         sonar=not args.no_sonar,
         sonar_port=args.sonar_port,
+        pattern=args.pattern,
+        spacing_m=args.spacing,
+        lines=args.lines,
+        line_length_m=args.line_length,
     )
 
 
@@ -179,7 +211,7 @@ def run_from_args(args: argparse.Namespace, settings: Settings | None = None) ->
     """`cc-daemon --simulate ...`: parse-time options to a finished run's exit status."""
     try:
         options = options_from_args(args, settings)
-        make_mission(options.stations, options.seed)  # a mission that cannot be laid out
+        options.mission()  # a mission that cannot be laid out
     except ValueError as exc:
         print(f"cc-daemon --simulate: {exc}", file=sys.stderr)
         return EXIT_USAGE

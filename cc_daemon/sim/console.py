@@ -35,7 +35,7 @@ from cc_daemon.core.cast.timestamps import swap_bytes
 from cc_daemon.core.protocol import CorruptFrame, Message, as_dict
 from cc_daemon.sim.autopilot import Violation
 from cc_daemon.sim.mission import Mission
-from cc_daemon.sim.nextsteps import next_steps
+from cc_daemon.sim.nextsteps import map_steps, next_steps, profile_steps
 
 EXIT_PROBE_MAY_BE_DOWN = 130  # the daemon's exit status when it had to stop at once
 HOME_M = 0.01  # a probe this close to the surface is home
@@ -249,6 +249,10 @@ def summary_lines(summary: Summary) -> list[str]:
     if summary.db_path is not None:
         lines.append(f"data stored in {summary.db_path}; next, as typed here:")
         lines.extend("  " + step for step in next_steps(summary.db_path, summary.first_cast_id))
+        lines.append("profiles a limnologist can publish:")
+        lines.extend("  " + step for step in profile_steps(summary.db_path))
+        lines.append("the lake floor from this run's soundings:")
+        lines.extend("  " + step for step in map_steps(summary.db_path))
     if summary.log_path is not None:
         lines.append(f"daemon log (JSON lines): {summary.log_path}")
     ending = _ending(summary)

@@ -13,9 +13,12 @@ comes from a `random.Random` the caller owns. No I/O, no clock.
 
 from __future__ import annotations
 
+import itertools
 import math
 import random
 from dataclasses import dataclass, replace
+from types import SimpleNamespace
+from typing import Any
 
 ORIGIN_LAT_DEG = 40.4506308
 ORIGIN_LON_DEG = -3.7260579
@@ -29,6 +32,10 @@ SONAR_MAX_NOISE_M = 0.05
 _SHOAL_RADIUS_M = 40.0
 _MIN_SPACING_M = 180.0  # 4.5 shoal radii: the shoal's effect there is under 0.1 mm
 _PLACEMENT_ATTEMPTS = 100  # per station, before the mission is refused
+# The functions `DepthField.depth_xy` needs, for one position (numpy gives them for arrays).
+SCALAR = SimpleNamespace(
+    sin=math.sin, cos=math.cos, exp=math.exp, fmax=max, fabs=math.fabs, log1p=math.log1p
+)
 
 
 def to_lat_lon(east_m: float, north_m: float) -> tuple[float, float]:
@@ -38,6 +45,13 @@ def to_lat_lon(east_m: float, north_m: float) -> tuple[float, float]:
         east_m / (EARTH_RADIUS_M * math.cos(math.radians(ORIGIN_LAT_DEG)))
     )
     return lat, lon
+
+
+def from_lat_lon(lat: Any, lon: Any) -> tuple[Any, Any]:
+    """`to_lat_lon` undone: (east, north) metres from the origin, for numbers or arrays."""
+    north = (lat - ORIGIN_LAT_DEG) * (math.pi / 180.0) * EARTH_RADIUS_M
+    east = (lon - ORIGIN_LON_DEG) * (math.pi / 180.0) * EARTH_RADIUS_M
+    return east * math.cos(math.radians(ORIGIN_LAT_DEG)), north
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,24 +99,44 @@ class DepthField:
     phase_n: float
     shoal: Point | None
     shoal_relief_m: float  # how much the shoal rises above the smooth bed at its centre
+    # 0: the bed is cut flat at MIN_CASTABLE_WATER_M where it would be shallower; more: it
+    # levels off smoothly over about this many metres (a lake has no plateau cut level at
+    # one depth, which would make a hypsography's area at that depth a coin toss)
+    floor_softness_m: float = 0.0
 
     def smooth_at(self, p: Point) -> float:
         """The bed without the shoal, never shallower than MIN_CASTABLE_WATER_M."""
+        return float(self.smooth_xy(p.east_m, p.north_m, SCALAR))
+
+    def depth_at(self, p: Point) -> float:
+        return float(self.depth_xy(p.east_m, p.north_m, SCALAR))
+
+    def smooth_xy(self, east: Any, north: Any, xp: Any) -> Any:
+        """`smooth_at` of one position (`xp` = SCALAR) or of arrays (`xp` = numpy): the
+        same formula either way, so tests and benchmarks can read the true bed of a
+        whole grid at once without the simulator importing numpy."""
         d = (
             self.base_m
             + self.swell_m
-            * math.sin(p.east_m / self.wavelength_e_m + self.phase_e)
-            * math.cos(p.north_m / self.wavelength_n_m + self.phase_n)
-            + self.ripple_m * math.sin((p.east_m + p.north_m) / 90.0 + self.phase_n)
+            * xp.sin(east / self.wavelength_e_m + self.phase_e)
+            * xp.cos(north / self.wavelength_n_m + self.phase_n)
+            + self.ripple_m * xp.sin((east + north) / 90.0 + self.phase_n)
         )
-        return max(d, MIN_CASTABLE_WATER_M)
+        soft = self.floor_softness_m
+        if soft > 0:
+            excess = (d - MIN_CASTABLE_WATER_M) / soft
+            return MIN_CASTABLE_WATER_M + soft * (
+                xp.fmax(excess, 0.0) + xp.log1p(xp.exp(-xp.fabs(excess)))
+            )
+        return xp.fmax(d, MIN_CASTABLE_WATER_M)
 
-    def depth_at(self, p: Point) -> float:
-        d = self.smooth_at(p)
+    def depth_xy(self, east: Any, north: Any, xp: Any) -> Any:
+        """The true bed (metres below the surface) at `east`, `north`: see `smooth_xy`."""
+        d = self.smooth_xy(east, north, xp)
         if self.shoal is not None:
-            r = p.distance_to(self.shoal)
-            d -= self.shoal_relief_m * math.exp(-(r * r) / (2 * _SHOAL_RADIUS_M**2))
-        return max(d, 0.1)
+            r2 = (east - self.shoal.east_m) ** 2 + (north - self.shoal.north_m) ** 2
+            d = d - self.shoal_relief_m * xp.exp(-r2 / (2 * _SHOAL_RADIUS_M**2))
+        return xp.fmax(d, 0.1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,14 +164,34 @@ class Mission:
     stations: tuple[Station, ...]
     field: DepthField
 
+    # The points each transit passes on its way (the lines of a bathymetric survey,
+    # `sim.lines`): transit i goes through waypoints[i] in order; none: straight.
+    waypoints: tuple[tuple[Point, ...], ...] = ()
+
     def leg(self, index: int) -> tuple[Point, Point]:
         """Transit `index`: from the start (index 0) or the previous station to station `index`."""
         begin = self.start if index == 0 else self.stations[index - 1].point
         return begin, self.stations[index].point
 
-    def leg_length_m(self, index: int) -> float:
+    def path(self, index: int) -> tuple[Point, ...]:
+        """Transit `index` as the points it is sailed through, its ends included."""
         begin, end = self.leg(index)
-        return begin.distance_to(end)
+        through = self.waypoints[index] if index < len(self.waypoints) else ()
+        return (begin, *through, end)
+
+    def leg_length_m(self, index: int) -> float:
+        points = self.path(index)
+        return sum(a.distance_to(b) for a, b in itertools.pairwise(points))
+
+    def along_leg(self, index: int, metres: float) -> Point:
+        """The point `metres` along transit `index` (clamped at its end)."""
+        points = self.path(index)
+        for a, b in itertools.pairwise(points):
+            step = a.distance_to(b)
+            if metres < step:
+                return a.towards(b, metres)
+            metres -= step
+        return points[-1]
 
     @property
     def total_distance_m(self) -> float:
@@ -153,6 +207,27 @@ class Mission:
         distance = max(self.field.depth_at(p) + noise, 0.0)
         confidence = rng.randint(75, 90) if moving else rng.randint(92, 100)
         return SonarReading(round(distance * 1000), confidence)
+
+
+def random_field(
+    rng: random.Random, shoal: Point | None, *, floor_softness_m: float = 0.0
+) -> DepthField:
+    """A smooth bed drawn from `rng`, with a shoal rising to SHALLOW_WATER_M at `shoal`."""
+    smooth = DepthField(
+        base_m=rng.uniform(4.5, 6.0),
+        swell_m=rng.uniform(1.0, 2.0),
+        ripple_m=rng.uniform(0.3, 0.8),
+        wavelength_e_m=rng.uniform(120.0, 220.0),
+        wavelength_n_m=rng.uniform(150.0, 260.0),
+        phase_e=rng.uniform(0.0, 2 * math.pi),
+        phase_n=rng.uniform(0.0, 2 * math.pi),
+        shoal=None,
+        shoal_relief_m=0.0,
+        floor_softness_m=floor_softness_m,
+    )
+    if shoal is None:
+        return smooth
+    return replace(smooth, shoal=shoal, shoal_relief_m=smooth.smooth_at(shoal) - SHALLOW_WATER_M)
 
 
 def make_mission(stations: int = 3, seed: int = 1) -> Mission:
@@ -191,23 +266,7 @@ def make_mission(stations: int = 3, seed: int = 1) -> Mission:
         heading, here = turn, candidate
         points.append(here)
     shallow_index = rng.randrange(1, stations) if stations >= 2 else None
-    smooth = DepthField(
-        base_m=rng.uniform(4.5, 6.0),
-        swell_m=rng.uniform(1.0, 2.0),
-        ripple_m=rng.uniform(0.3, 0.8),
-        wavelength_e_m=rng.uniform(120.0, 220.0),
-        wavelength_n_m=rng.uniform(150.0, 260.0),
-        phase_e=rng.uniform(0.0, 2 * math.pi),
-        phase_n=rng.uniform(0.0, 2 * math.pi),
-        shoal=None,
-        shoal_relief_m=0.0,
-    )
-    field = smooth
-    if shallow_index is not None:
-        centre = points[shallow_index]
-        field = replace(
-            smooth, shoal=centre, shoal_relief_m=smooth.smooth_at(centre) - SHALLOW_WATER_M
-        )
+    field = random_field(rng, points[shallow_index] if shallow_index is not None else None)
     built = tuple(
         Station(i + 1, p, round(field.depth_at(p), 3), i == shallow_index)
         for i, p in enumerate(points)

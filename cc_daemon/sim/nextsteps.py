@@ -90,3 +90,27 @@ def live_steps(
     ask = f"--db {where}" if findable else f"--socket {_shown(socket, cwd)}"
     web = f"--db {where}" if findable else f"--db {where} --socket {_shown(socket, cwd)}"
     return [f"{run} status {ask} --watch", f"{run} web {web}"]
+
+
+def map_steps(db: Path, *, argv0: str | None = None, cwd: Path | None = None) -> list[str]:
+    """The lake floor's command for journal `db` (its latest survey: this run's), and the
+    products it writes, each line runnable or readable as printed."""
+    cwd = cwd or Path.cwd()
+    out = _shown(Path(f"{db.absolute().with_suffix('')}-map"), cwd)
+    return [
+        f"{program(argv0, cwd=cwd)} map --db {_shown(db, cwd)} -o {out}",
+        f"  writes bathymetry.nc, depth.tif, contours.geojson, hypsography.csv, map.png and"
+        f" summary.txt into {out} (docs/maps.md; --pattern lines flies a survey worth mapping)",
+    ]
+
+
+def profile_steps(db: Path, *, argv0: str | None = None, cwd: Path | None = None) -> list[str]:
+    """The profiles' command for journal `db` and what it makes (docs/profiles.md)."""
+    cwd = cwd or Path.cwd()
+    out = _shown(Path(f"{db.absolute().with_suffix('')}-profiles"), cwd)
+    return [
+        f"{program(argv0, cwd=cwd)} profiles --db {_shown(db, cwd)} -o {out}",
+        f"  makes {out}/: profiles.nc and profiles.csv (binned, lag-corrected), stations.csv"
+        " and stations.geojson (thermocline, metalimnion, oxycline, DCM, hypoxia, surface,"
+        " bottom), cast-N.png (each cast), section-P.png (each parameter along the survey)",
+    ]

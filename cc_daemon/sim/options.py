@@ -14,12 +14,26 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from cc_daemon.config.statuspaths import SIMULATOR_JOURNAL
 from cc_daemon.sim.autopilot import UCM_2023_FRAME_PERIOD_S, AutopilotConfig, Firmware
-from cc_daemon.sim.mission import MIN_CASTABLE_WATER_M, SHALLOW_WATER_M, SONAR_MAX_NOISE_M
+from cc_daemon.sim.lines import (
+    DEFAULT_LINE_LENGTH_M,
+    DEFAULT_LINES,
+    DEFAULT_SPACING_M,
+    SURVEY_SPEED_M_S,
+    make_lines_mission,
+)
+from cc_daemon.sim.mission import (
+    MIN_CASTABLE_WATER_M,
+    SHALLOW_WATER_M,
+    SONAR_MAX_NOISE_M,
+    Mission,
+    make_mission,
+)
 
 if TYPE_CHECKING:
     from cc_daemon.config import CastSettings, Settings
 
 DEFAULT_DB = SIMULATOR_JOURNAL
+PATTERNS = ("stations", "lines")
 STALL_AT_M = 1.0  # shallower than every castable station's plan (>= 1.95 m)
 
 
@@ -78,8 +92,15 @@ class SimOptions:
     sonar: bool = True  # the autopilot reads a Ping1D: simulated on a pty, or at sonar_port
     sonar_port: str | None = None  # a real Ping1D (a bench test of the whole chain)
     firmware: Firmware = "ucm-2023"  # which autopilot firmware to behave as
+    # "lines": parallel lines for bathymetry (`sim.lines`), sailed at survey speed
+    pattern: str = "stations"
+    spacing_m: float = DEFAULT_SPACING_M
+    lines: int = DEFAULT_LINES
+    line_length_m: float = DEFAULT_LINE_LENGTH_M
 
     def __post_init__(self) -> None:
+        if self.pattern not in PATTERNS:
+            raise ValueError(f"--pattern {self.pattern}: one of {', '.join(PATTERNS)}")
         if self.stations < 1:
             raise ValueError(f"--stations {self.stations}: allowed >= 1")
         if not 0.0 <= self.corrupt <= 1.0:
@@ -88,6 +109,24 @@ class SimOptions:
             raise ValueError(f"--drop-link-at {self.drop_link_at}: allowed >= 0 (seconds)")
         if self.drop_link_for <= 0:
             raise ValueError(f"--drop-link-for {self.drop_link_for}: allowed > 0 (seconds)")
+
+    def mission(self) -> Mission:
+        """The run's mission (ValueError: one that cannot be laid out)."""
+        if self.pattern == "lines":
+            return make_lines_mission(
+                self.stations,
+                self.seed,
+                spacing_m=self.spacing_m,
+                lines=self.lines,
+                line_length_m=self.line_length_m,
+            )
+        return make_mission(self.stations, self.seed)
+
+    @property
+    def boat_speed_m_s(self) -> float:
+        """Lines are sailed at survey speed whatever the pace: soundings a metre or so
+        apart, as a real survey's (the pace shortens the casts)."""
+        return SURVEY_SPEED_M_S if self.pattern == "lines" else self.chosen_pace.boat_speed_m_s
 
     @property
     def chosen_pace(self) -> Pace:
@@ -152,6 +191,7 @@ def daemon_settings(options: SimOptions, port: Path, status: Path | None = None)
         # The current sensor: to read garbage from, or to tell a dead encoder from a jam.
         gpio["adc"] = True
     base["cast"].update(pace.cast)
+    base["profile"].update(pace_profile(options))
     base["store"]["path"] = str(options.db_path.absolute())
     if base["status"]["path"] is None:
         # Where `cc-daemon status --db JOURNAL` looks (the runner checks that no other
@@ -180,6 +220,21 @@ def _number(value: float) -> str:
     return f"{value:g}"
 
 
+def pace_profile(options: SimOptions) -> dict[str, Any]:
+    """The [profile] a pace that speeds the winch up runs with: its casts are not slowed
+    down for the profile (the world is fast, not the sensors), so bins as thick as the
+    probe travels between two readings (1.25 m at the fast pace), each of one reading.
+    A pace at the winch's own speed keeps the configured [profile]."""
+    from cc_daemon.config import Settings
+
+    pace = options.chosen_pace
+    if pace.winch_speed_m_s is None:
+        return {}
+    period = (options.settings or Settings()).sonde.period_s
+    travel = min(max(round(pace.winch_speed_m_s * period, 2), 0.01), 5.0)
+    return {"bin_m": travel, "min_count": 1, "resolve": []}
+
+
 def pace_changes(options: SimOptions) -> list[str]:
     """What the run's pace changed in the user's settings, each as `key old -> new`.
 
@@ -199,7 +254,18 @@ def pace_changes(options: SimOptions) -> list[str]:
     for key, value in pace.cast.items():
         if current[key] != value:
             changes.append(f"cast.{key} {_number(current[key])} -> {_number(value)}")
+    profile = base.profile.model_dump()
+    for key, value in pace_profile(options).items():
+        mine = list(profile[key]) if isinstance(profile[key], tuple) else profile[key]
+        if mine != value:
+            changes.append(f"profile.{key} {_shown(profile[key])} -> {_shown(value)}")
     return changes
+
+
+def _shown(value: object) -> str:
+    if isinstance(value, tuple | list):
+        return "[" + ", ".join(map(str, value)) + "]"
+    return _number(value) if isinstance(value, float | int) else str(value)
 
 
 def firmware_profile(firmware: Firmware, frame_period_s: float | None) -> dict[str, Any]:
@@ -218,7 +284,7 @@ def autopilot_config(options: SimOptions, settings: Settings) -> AutopilotConfig
     pace = options.chosen_pace
     return AutopilotConfig(
         **firmware_profile(options.firmware, pace.frame_period_s),
-        boat_speed_m_s=pace.boat_speed_m_s,
+        boat_speed_m_s=options.boat_speed_m_s,
         resend_m_during_cast=options.resend_m,
         finish_timeout_s=pace.finish_timeout_s(settings.cast.max_duration_s),
         max_line_m=settings.winch.max_line_m,

@@ -46,6 +46,8 @@ from cc_daemon.drivers.sonar.ping import (
     OtherMessage,
     PingStream,
 )
+from cc_daemon.sim import echosounder
+from cc_daemon.sim.echosounder import EchoErrors, EchoKind
 from cc_daemon.sim.mission import Mission, Point
 
 STREAM_INTERVAL_S = 0.25  # the manual: distance_simple every 250 ms
@@ -107,15 +109,25 @@ class FieldSounder:
         seed: int = 1,
         dropout_rate: float = 0.03,
         noise_m: float = 0.02,
+        errors: EchoErrors | None = None,
+        draft_m: float = 0.0,
     ) -> None:
+        """`errors`: how it errs under way (`sim.echosounder`); by default a 3 % share of
+        outliers beside the dropouts (`dropout_rate`) and the noise (`noise_m`).
+        `draft_m`: how deep the transducer sits (it reads the bed that much nearer)."""
         if not 0.0 <= dropout_rate <= 1.0:
             raise ValueError(f"dropout_rate={dropout_rate} is invalid: allowed 0..1")
         self.mission = mission
         self.where = where
         self.dropout_rate = dropout_rate
         self.noise_m = noise_m
+        self.errors = errors or EchoErrors(dropout_rate=dropout_rate, noise_m=noise_m)
         self._rng = random.Random(seed)
         self.dropouts = 0
+        self.outliers = 0
+        self.last_kind = EchoKind.GOOD  # what the last reading was (the truth, for tests)
+        self._readings = 0  # its clock for the heave: one reading per stream interval
+        self.draft_m = draft_m
 
     def slope(self, p: Point) -> float:
         """The bottom's slope at `p`, metres per metre (central differences)."""
@@ -128,15 +140,25 @@ class FieldSounder:
     def __call__(self) -> Echo:
         point, moving = self.where()
         rng = self._rng
-        if moving and rng.random() < self.dropout_rate:
-            self.dropouts += 1
-            return Echo(0, 0)
-        depth = self.mission.field.depth_at(point)
+        self._readings += 1
+        depth = self.mission.field.depth_at(point) - self.draft_m
+        if moving:
+            confidence = rng.randint(75, 90) - self._penalty(point, depth)
+            t_s = self._readings * STREAM_INTERVAL_S
+            reading = echosounder.read(depth, confidence, t_s, rng, self.errors)
+            self.last_kind = reading.kind
+            self.dropouts += reading.kind is EchoKind.DROPOUT
+            self.outliers += reading.kind.outlier
+            return Echo(round(reading.distance_m * 1000), reading.confidence_pct)
+        self.last_kind = EchoKind.GOOD
         noise = max(-3 * self.noise_m, min(3 * self.noise_m, rng.gauss(0.0, self.noise_m)))
-        confidence = float(rng.randint(75, 90) if moving else rng.randint(92, 100))
-        confidence -= max(0.0, SHALLOW_M - depth) * _SHALLOW_PENALTY_PER_M
-        confidence -= min(40.0, self.slope(point) * _STEEP_PENALTY_PER_SLOPE)
+        confidence = float(rng.randint(92, 100)) - self._penalty(point, depth)
         return Echo(round(max(depth + noise, 0.0) * 1000), max(0, min(100, round(confidence))))
+
+    def _penalty(self, point: Point, depth: float) -> float:
+        """What shallow water and a steep bed take off a good echo's confidence."""
+        shallow = max(0.0, SHALLOW_M - depth) * _SHALLOW_PENALTY_PER_M
+        return shallow + min(40.0, self.slope(point) * _STEEP_PENALTY_PER_SLOPE)
 
 
 class Ping1DDevice:

@@ -72,6 +72,7 @@ class FramePort:
         self.received: list[Received] = []
         self.errors: list[CorruptFrame] = []
         self.error_times: list[float] = []  # when each of `errors` was found, in step with it
+        self.read_times: list[float] = []  # every read's time, which its frames and errors carry
         self.bytes_in = 0
         self.bytes_out = 0
         self.hung_up = False  # the peer hung up (EIO / end of file): nothing more will arrive
@@ -204,6 +205,7 @@ class FramePort:
         if self.rx_filter is not None:
             data = self.rx_filter(data)
         now = time.monotonic()  # after the filter: what it did to these bytes is not later
+        self.read_times.append(now)
         self.bytes_in += len(data)
         for event in self.parser.events(data):
             if isinstance(event, CorruptFrame):

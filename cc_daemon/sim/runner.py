@@ -76,19 +76,25 @@ def _headline(options: SimOptions, mission: Mission) -> str:
     head = (
         f"cc-daemon --simulate: {_stations(len(mission.stations))}, seed {mission.seed}, "
         f"{pace.name} pace, {mission.total_distance_m:.0f} m of transits"
+        + (
+            f" ({options.lines} lines of {options.line_length_m:g} m, {options.spacing_m:g} m"
+            f" apart, at {options.boat_speed_m_s:g} m/s)"
+            if options.pattern == "lines"
+            else ""
+        )
         + (f"  [{noise}]" if noise else "")
     )
     changes = pace_changes(options)
     if changes:
         head += (
-            f"\n  {pace.name} pace: boat {pace.boat_speed_m_s:g} m/s; your settings changed: "
+            f"\n  {pace.name} pace: boat {options.boat_speed_m_s:g} m/s; your settings changed: "
             + ", ".join(changes)
             + f" (--pace {REALTIME.name} keeps them)"
         )
     elif pace is REALTIME:
         head += (
-            f"\n  {pace.name} pace: boat {pace.boat_speed_m_s:g} m/s; "
-            "your winch and cast settings as configured"
+            f"\n  {pace.name} pace: boat {options.boat_speed_m_s:g} m/s; "
+            "your winch, cast and profile settings as configured"
         )
     return head
 
@@ -132,7 +138,7 @@ async def run_simulation(options: SimOptions) -> int:
     from cc_daemon.sim.devices import SIMULATORS
     from cc_daemon.store import StoreError
 
-    mission = make_mission(options.stations, options.seed)
+    mission = options.mission()
     console = SimConsole(options.out, live=options.live)
     flip_out = BitFlipper(options.corrupt, options.seed * 2 + 1) if options.corrupt else None
     flip_in = BitFlipper(options.corrupt, options.seed * 2 + 2) if options.corrupt else None

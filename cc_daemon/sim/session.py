@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from bisect import bisect_left
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -143,9 +144,23 @@ class Run:
             if flipper is None:
                 continue
             times = flipper.flip_times
-            for at in times[self._flips_seen[inbound] :]:
+            for flipped_at in times[self._flips_seen[inbound] :]:
+                at = self._read_time(flipped_at) if inbound else flipped_at
                 self.autopilot.bits_flipped(at - self.t0, inbound=inbound)
             self._flips_seen[inbound] = len(times)
+
+    def _read_time(self, flipped_at: float) -> float:
+        """The time of the read a flip on the daemon's frames was made in, which its
+        frames carry (taken a moment after the flip). A frame the flip spoilt is one of
+        them or begins in their bytes (the parser reads on through a spoilt frame: a
+        second corrupt frame found a read later has its window open at the first's
+        time), so the flip must be no later than them to excuse them."""
+        for port in self.ports:  # in the order they were attached, as their reads came
+            reads = port.read_times
+            i = bisect_left(reads, flipped_at)
+            if i < len(reads):
+                return reads[i]
+        return flipped_at
 
     async def _send(self, now: float, message: Message) -> None:
         self.console.frame_out(now, message, self._timestamp_order())
@@ -246,8 +261,7 @@ class Run:
                 self.console.event(now, "survey over")
             return
         if ap.phase is Phase.CRUISING:
-            begin, end = self.mission.leg(ap.index)
-            length = begin.distance_to(end)
+            length = self.mission.leg_length_m(ap.index)
             speed = ap.config.boat_speed_m_s
             self.console.event(
                 now,
@@ -274,8 +288,7 @@ class Run:
         station = ap.station
         if station is None:
             return
-        _, end = self.mission.leg(ap.index)
-        to_go = ap.position(now).distance_to(end)
+        to_go = ap.to_go_m(now)
         speed = ap.config.boat_speed_m_s
         self.console.event(
             now, f"under way to {station.name}: {to_go:.0f} m to go, ETA {to_go / speed:.0f} s"

@@ -510,10 +510,11 @@ class JournalReader:
         return chosen
 
     def sonar_readings(
-        self, *, since: float | None = None, until: float | None = None
+        self, *, since: float | None = None, until: float | None = None, session: int | None = None
     ) -> list[sonar.SonarReadingRecord]:
-        """The daemon's own sonar readings in time order (`store.sonar`)."""
-        sql, params = sonar.query(since=since, until=until)
+        """The daemon's own sonar readings in time order (`store.sonar`); `session`: only
+        that daemon run's."""
+        sql, params = sonar.query(since=since, until=until, session=session)
         rows = self._query(sql, params, "the sonar's readings")
         return self._records(sonar.record, rows, "sonar readings")
 

@@ -21,19 +21,25 @@ class SonarReadingRecord(NamedTuple):
     port: str
     distance_mm: int
     confidence_pct: int
+    session_id: int | None = None  # the daemon run that journaled it
 
     @property
     def valid(self) -> bool:
         return sounding_valid(self.distance_mm, self.confidence_pct)
 
 
-def query(*, since: float | None = None, until: float | None = None) -> tuple[str, list[object]]:
+def query(
+    *, since: float | None = None, until: float | None = None, session: int | None = None
+) -> tuple[str, list[object]]:
     """The SELECT of the readings in time order, from `since` to `until` (wall clock),
-    if given, and its parameters; each row becomes a record with `record`."""
+    if given, of one `session` if given, and its parameters; each row becomes a record
+    with `record`."""
+    where = " AND session_id = ?" if session is not None else ""
+    params: list[object] = [-1e300 if since is None else since, 1e300 if until is None else until]
     return (
-        "SELECT mono_s, wall_s, clock_synced, port, distance_mm, confidence_pct"
-        " FROM sonar_readings WHERE wall_s >= ? AND wall_s <= ? ORDER BY wall_s, id",
-        [-1e300 if since is None else since, 1e300 if until is None else until],
+        "SELECT mono_s, wall_s, clock_synced, port, distance_mm, confidence_pct, session_id"
+        f" FROM sonar_readings WHERE wall_s >= ? AND wall_s <= ?{where} ORDER BY wall_s, id",
+        params if session is None else [*params, session],
     )
 
 
@@ -46,4 +52,5 @@ def record(r: tuple[Any, ...]) -> SonarReadingRecord:
         text(r[3], "port"),
         integer(r[4], "distance_mm"),
         integer(r[5], "confidence_pct"),
+        None if r[6] is None else integer(r[6], "session_id"),
     )

@@ -17,6 +17,7 @@ from cc_daemon.cli.doctor.system import Identity, System, describe_owner, may, r
 from cc_daemon.cli.doctor.verdict import Check, Level
 from cc_daemon.cli.status.client import StatusUnavailable, read_status
 from cc_daemon.config import Settings, load_settings
+from cc_daemon.config.resolution import describe_resolution
 from cc_daemon.config.statuspaths import SERVICE_SOCKET
 from cc_daemon.core.errors import ConfigError
 
@@ -282,6 +283,18 @@ def check_service(system: System, settings: Settings) -> Iterator[Check]:
         yield Check("status socket", "WARN", detail, fix)
 
 
+def check_profile(settings: Settings) -> Check:
+    """What resolution and lag the configuration's casts give (docs/profiles.md)."""
+    described = describe_resolution(settings)
+    if described is None:
+        return Check("profile", "OK", "no sonde (sonde.backend = none): casts are not limited")
+    line, short = described
+    if short:
+        fix = "widen profile.bin_m, lower profile.min_count or resolve fewer parameters"
+        return Check("profile", "WARN", line, fix)
+    return Check("profile", "OK", line)
+
+
 def run_checks(system: System, config: Path | None = None) -> list[Check]:
     first, settings = load_config(system, config)
     results = [first]
@@ -292,6 +305,7 @@ def run_checks(system: System, config: Path | None = None) -> list[Check]:
     results += check_serial(system, settings, who)
     results += check_gpio(system, settings, who)
     results += check_software(settings, system.installed)
+    results.append(check_profile(settings))
     results += check_journal(system, settings, who)
     results.append(check_clock(system))
     results += check_service(system, settings)

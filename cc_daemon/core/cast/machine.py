@@ -44,6 +44,7 @@ class Outcome(StrEnum):
 class CommandWinch:
     depth_m: float
     slow: bool = False  # at the winch's approach speed (a blind cast's descent)
+    max_speed_m_s: float | None = None  # no faster than this (a profile's resolution)
 
 
 @dataclass(frozen=True, slots=True)
@@ -281,7 +282,7 @@ class CastMachine:
             if isinstance(leg, Move):
                 if not self._commanded:
                     self._commanded = True
-                    out.append(CommandWinch(leg.depth_m, leg.slow))
+                    out.append(CommandWinch(leg.depth_m, leg.slow, leg.max_speed_m_s))
                     return  # the status in hand predates the command
                 if status.moving:
                     return

@@ -9,6 +9,10 @@ cast goes **blind**: never deeper than `cast.blind_max_depth_m`, every move
 down at the winch's approach speed (`Move.slow`), and the sonde's bottom
 contact, where a sonde is fitted, still stops the descent. Planning the full
 target depth there would drive the probe into the bed of a shoal.
+
+With a sonde, the survey's wanted resolution (`resolution.Resolution`) limits a
+continuous descent's speed (`Move.max_speed_m_s`) and lengthens a stepped cast's
+dwells to what its slowest sensor needs; it only ever slows a cast down.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from enum import StrEnum
 from typing import Literal, Protocol
 
 from cc_daemon.core.cast.bottom import distrust
+from cc_daemon.core.cast.resolution import Resolution
 from cc_daemon.core.protocol import StartMeasuring
 
 # A stop a hair shallower than the target is not worth a separate dwell.
@@ -65,11 +70,13 @@ class Phase(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class Move:
-    """Run the winch to `depth_m` (0 means home); `slow`: at its approach speed."""
+    """Run the winch to `depth_m` (0 means home); `slow`: at its approach speed;
+    `max_speed_m_s`: no faster than that (a profile's resolution)."""
 
     depth_m: float
     phase: Phase
     slow: bool = False
+    max_speed_m_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +99,7 @@ class CastPlan:
     mode: str
     legs: tuple[Leg, ...]
     blind: str | None = None  # why no bottom could be trusted: the cast goes blind
+    profile: dict[str, object] | None = None  # the resolution it was planned for
 
     def describe(self) -> dict[str, object]:
         described: dict[str, object] = {
@@ -103,6 +111,8 @@ class CastPlan:
         }
         if self.blind is not None:
             described["blind"] = self.blind
+        if self.profile is not None:
+            described["profile"] = self.profile
         return described
 
 
@@ -112,6 +122,8 @@ def _describe(leg: Leg) -> dict[str, object]:
     move: dict[str, object] = {"move_to_m": leg.depth_m, "phase": str(leg.phase)}
     if leg.slow:
         move["speed"] = "approach"
+    if leg.max_speed_m_s is not None:
+        move["max_speed_m_s"] = round(leg.max_speed_m_s, 6)
     return move
 
 
@@ -125,7 +137,10 @@ class SkipCast:
 
 
 def plan_cast(
-    station: StartMeasuring, settings: CastSettingsLike, max_line_m: float
+    station: StartMeasuring,
+    settings: CastSettingsLike,
+    max_line_m: float,
+    resolution: Resolution | None = None,
 ) -> CastPlan | SkipCast:
     depth = settings.target_depth_m
     limited_by: LimitedBy = "target"
@@ -165,14 +180,16 @@ def plan_cast(
             Hold(settings.soak_s, Phase.SOAKING),
         ]
     if settings.mode == "stepped":
+        dwell = max(settings.dwell_s, resolution.dwell_s if resolution else 0.0)
         level = settings.step_m
         while level < depth - _LEVEL_EPSILON_M:
-            legs += [Move(level, Phase.DESCENDING, slow), Hold(settings.dwell_s, Phase.DWELLING)]
+            legs += [Move(level, Phase.DESCENDING, slow), Hold(dwell, Phase.DWELLING)]
             level += settings.step_m
-        legs += [Move(depth, Phase.DESCENDING, slow), Hold(settings.dwell_s, Phase.DWELLING)]
+        legs += [Move(depth, Phase.DESCENDING, slow), Hold(dwell, Phase.DWELLING)]
     else:
+        limit = resolution.descent_limit_m_s if resolution else None
         legs += [
-            Move(depth, Phase.DESCENDING, slow),
+            Move(depth, Phase.DESCENDING, slow, limit),
             Hold(settings.bottom_dwell_s, Phase.DWELLING),
         ]
     legs.append(Move(0.0, Phase.ASCENDING))
@@ -183,4 +200,5 @@ def plan_cast(
         mode=settings.mode,
         legs=tuple(legs),
         blind=blind,
+        profile=resolution.record() if resolution else None,
     )

@@ -44,9 +44,17 @@ class LinePhysics:
         self._motion: _Motion | None = None
         self._fault: str | None = None
 
-    def command(self, now: float, target_m: float, *, slow: bool = False) -> None:
+    def command(
+        self,
+        now: float,
+        target_m: float,
+        *,
+        slow: bool = False,
+        max_speed_m_s: float | None = None,
+    ) -> None:
         """Start moving from wherever the probe is now towards `target_m`; `slow`: at
-        the approach speed (`APPROACH_FRACTION` of the line speed) the whole way."""
+        the approach speed (`APPROACH_FRACTION` of the line speed) the whole way;
+        `max_speed_m_s`: no faster than it, and no slower than the approach speed."""
         depth = self.depth(now)
         self._settle(now)
         target = min(max(target_m, 0.0), self.max_line_m)
@@ -57,7 +65,10 @@ class LinePhysics:
             end = min(depth, JAM_DEPTH_M)
             fault = f"home not reached: line jammed at {end:.2f} m"
         self._fault = None
-        speed = self.speed_m_s * (APPROACH_FRACTION if slow else 1.0)
+        approach = self.speed_m_s * APPROACH_FRACTION
+        speed = approach if slow else self.speed_m_s
+        if max_speed_m_s is not None:
+            speed = max(min(speed, max_speed_m_s), min(approach, speed))
         self._motion = _Motion(depth, now, end, now + abs(end - depth) / speed, fault)
 
     def stop(self, now: float) -> None:

@@ -81,3 +81,12 @@ class ApproachSpeed(Protocol):
     A backend without it runs a blind cast's moves at its one speed."""
 
     def move_slowly_to(self, depth_m: float) -> None: ...
+
+
+@runtime_checkable
+class LimitedSpeed(Protocol):
+    """A winch that can run a move no faster than a given speed, and no slower than its
+    approach speed (the slowest it runs steadily): a profile's descent asks for it.
+    A backend without it runs the move at its own speed (the daemon says so)."""
+
+    def move_at_most(self, depth_m: float, speed_m_s: float) -> None: ...

@@ -10,9 +10,11 @@ witnesses disagreeing at an edge. Under the winch's lock the motor is only ever
 `call_soon_threadsafe` (`_tell_loop`). A stop made here is counted in flight
 until the loop has heard why: until then the winch's status says it is still
 moving, never "stopped, no fault" short of its target (seen under load: a pulse
-storm's stop read as a motion that had simply ended at 1.27 m). Once the winch
-is closed, what was still on its way to the loop is dropped: the pins it would
-touch are closed. Its state is set up by `GpioWinch.__init__`.
+storm's stop read as a motion that had simply ended at 1.27 m); an arrival heard
+after the loop has itself ended that motion (a cast's abort commanding the haul
+home) stops nothing more. Once the winch is closed, what was still on its way to
+the loop is dropped: the pins it would touch are closed. Its state is set up by
+`GpioWinch.__init__`.
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ class EdgeCounting:
     _ignored: int
     _witnesses: Witnesses
     _stops_in_flight: int
+    _motion: int  # bumped by the loop each time it ends a motion (`GpioWinch._halt`)
     _closed: bool
     drum: Drum
 
@@ -62,7 +65,7 @@ class EdgeCounting:
 
         def _encoder_faulted(self, reason: str) -> None: ...
 
-        def _pulse_seen(self, count: int, stop: str | None) -> None: ...
+        def _pulse_seen(self, count: int, stop: str | None, motion: int) -> None: ...
 
         def _switch_seen(self, closed: bool, running: Direction) -> None: ...
 
@@ -125,7 +128,8 @@ class EdgeCounting:
                 stop = "arrived"
             if stop is not None:
                 self._bridge.stop()
-        self._tell_loop(self._pulse_seen, count, stop, stopped=stop is not None)
+            motion = self._motion  # the motion this stop ended
+        self._tell_loop(self._pulse_seen, count, stop, motion, stopped=stop is not None)
 
     def _switch_closed_thread(self) -> None:
         with self._lock:

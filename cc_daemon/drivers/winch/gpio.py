@@ -118,6 +118,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self._estimate: DepthEstimate | None = None  # where the probe is, the count in doubt
         self._ignored = 0  # pulses not counted since the encoder fault
         self._stops_in_flight = 0  # motor stops made on a thread, not yet heard on the loop
+        self._motion = 0  # which motion a stop made on a thread ended (see `_pulse_seen`)
         # Loop side only.
         self._fault: str | None = None
         self._homed = False
@@ -181,7 +182,8 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             depth_high_m=estimate.high_m if estimate is not None else None,
         )
 
-    def move_to(self, depth_m: float, *, slow: bool = False) -> None:
+    def move_to(self, depth_m: float, *, slow: bool = False, pace: float = 1.0) -> None:
+        """Run to `depth_m` at `pace` of the nominal duty (the approach duty if `slow`)."""
         if self._closed:
             raise WinchFault("the GPIO winch is closed")
         if self._distrust is not None:
@@ -194,12 +196,18 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
                 "winch not homed: the limit switch has not closed since start-up; "
                 "haul the probe up by hand or run `cc-daemon winch home`"
             )
-        self._begin(min(max(depth_m, 0.0), self.max_line_m), slow=slow)
+        pace = APPROACH_FRACTION if slow else min(max(pace, APPROACH_FRACTION), 1.0)
+        self._begin(min(max(depth_m, 0.0), self.max_line_m), pace=pace)
 
     def move_slowly_to(self, depth_m: float) -> None:
         """`move_to` at the approach duty for the whole motion (core.winch.status's
         ApproachSpeed): a blind cast pays out with the bed anywhere below."""
         self.move_to(depth_m, slow=True)
+
+    def move_at_most(self, depth_m: float, speed_m_s: float) -> None:
+        """`move_to` no faster than `speed_m_s`, and no slower than the approach duty
+        (core.winch.status's LimitedSpeed): the duty scaled as line_speed_m_s is."""
+        self.move_to(depth_m, pace=speed_m_s / self._cfg.line_speed_m_s)
 
     def stop(self) -> None:
         self._halt()
@@ -303,7 +311,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
 
     # ------------------------------------------------------------ starting a motion
 
-    def _begin(self, target_m: float, *, homing: bool = False, slow: bool = False) -> None:
+    def _begin(self, target_m: float, *, homing: bool = False, pace: float = 1.0) -> None:
         self._halt()
         self._fault = None
         self._changed.set()
@@ -329,10 +337,10 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             self._goal = Goal.TARGET
             self._target_count = min(target, self._max_count)
         direction = Direction.PAY_OUT if target > count else Direction.HAUL_IN
-        self._start_motor(direction, None, homing=False, slow=slow)
+        self._start_motor(direction, None, homing=False, pace=pace)
 
     def _start_motor(
-        self, direction: Direction, duty: float | None, *, homing: bool, slow: bool = False
+        self, direction: Direction, duty: float | None, *, homing: bool, pace: float = 1.0
     ) -> None:
         cfg = self._cfg
         self._pending = None
@@ -343,7 +351,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             # that the zero check below can judge the sensor (one stuck at its top would
             # otherwise pass unseen and stop every move as an overcurrent).
             start = functools.partial(
-                self._start_pending, direction, duty, homing, slow, self.switch_closed
+                self._start_pending, direction, duty, homing, pace, self.switch_closed
             )
             self._pending = self._loop.call_later(ZERO_SETTLE_S - off_for, start)
             self._changed.set()
@@ -353,7 +361,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         now = self._clock.monotonic()
         nominal = cfg.payout_duty if direction is Direction.PAY_OUT else cfg.haulin_duty
         self._approach_duty = nominal * APPROACH_FRACTION  # a slow motion's whole duty
-        self._duty = self._approach_duty if slow else (duty or nominal)
+        self._duty = duty or nominal * pace
         deadline = None
         if self._goal is Goal.HOME:
             # Line out / haul speed + margin; from an unknown position (start-up
@@ -390,7 +398,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
         self._schedule_tick()
 
     def _start_pending(
-        self, direction: Direction, duty: float | None, homing: bool, slow: bool, closed: bool
+        self, direction: Direction, duty: float | None, homing: bool, pace: float, closed: bool
     ) -> None:
         """A start that waited for the zero. A haul in does not start if the switch
         closed meanwhile (`closed`: as it was when the start was asked for): its edge
@@ -407,7 +415,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
                 self._goal = None
             return
         try:
-            self._start_motor(direction, duty, homing=homing, slow=slow)
+            self._start_motor(direction, duty, homing=homing, pace=pace)
         except Exception as exc:  # the caller that asked has returned: no one else hears
             self._fail(f"the motor could not be started: {type(exc).__name__}: {exc}")
 
@@ -443,6 +451,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
                 self._tick = None
             with self._lock:
                 self._goal = None
+                self._motion += 1
             guard, self._guard = self._guard, None
             if guard is not None:
                 # With the count in doubt, a motion that ran without a counted pulse
@@ -524,10 +533,16 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
 
     # ------------------------------------------------------------ handed to the loop
 
-    def _pulse_seen(self, count: int, stop: str | None) -> None:
+    def _pulse_seen(self, count: int, stop: str | None, motion: int) -> None:
         self._estimate = None  # a counted pulse: the count says where the probe is again
         if self._guard is not None:
             self._guard.pulse(self._clock.monotonic())
+        if stop == "arrived" and motion != self._motion:
+            # The loop ended that motion itself (a stop, a cast's abort commanding the
+            # haul home) before it heard of the arrival: halting now would stop the
+            # motion that replaced it, short of home with no fault (a stranded cast).
+            self._changed.set()
+            return
         if stop == "end of line":
             self._fail(
                 f"end of line: {self.drum.line_m(count):.2f} m out reaches winch.max_line_m "

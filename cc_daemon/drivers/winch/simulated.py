@@ -37,6 +37,12 @@ class SimulatedWinch:
         self._physics.command(self._clock.monotonic(), depth_m, slow=True)
         self._changed.set()
 
+    def move_at_most(self, depth_m: float, speed_m_s: float) -> None:
+        """`move_to` no faster than `speed_m_s` and no slower than the approach speed
+        (core.winch.status's LimitedSpeed): a profile's descent."""
+        self._physics.command(self._clock.monotonic(), depth_m, max_speed_m_s=speed_m_s)
+        self._changed.set()
+
     def stop(self) -> None:
         self._physics.stop(self._clock.monotonic())
         self._changed.set()
