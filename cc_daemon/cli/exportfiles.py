@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TextIO
 
 from cc_daemon.store import JournalReader
+from cc_daemon.store.reader import DamagedJournalError
 from cc_daemon.store.records import CastRecord, SampleRecord
 from cc_daemon.store.stations import names
 
@@ -45,6 +46,7 @@ def sonde_csv(reader: JournalReader, cast_id: int | None, out: TextIO) -> int:
     casts = reader.casts(cast_id=cast_id)
     samples = reader.sonde_samples(cast_id=cast_id)
     columns = sonde.parameter_map(reader.events(), samples)
+    _undamaged(reader)
     return sonde.write_csv(samples, columns, casts, out)
 
 
@@ -56,4 +58,13 @@ def sonde_netcdf(reader: JournalReader, cast_id: int | None, path: Path) -> tupl
     casts = reader.casts(cast_id=cast_id)
     samples = reader.sonde_samples(cast_id=cast_id)
     columns = sonde.parameter_map(reader.events(), samples)
+    _undamaged(reader)
     return sonde_netcdf.write(casts, samples, columns, path), len(casts)
+
+
+def _undamaged(reader: JournalReader) -> None:
+    """A file read from a damaged journal is not begun: the damage is said instead, in
+    one line, before its first byte (`cc-daemon recover` saves what can be)."""
+    damage = reader.damage_report()
+    if damage is not None:
+        raise DamagedJournalError(damage)
