@@ -291,6 +291,14 @@ def ready(browser: Any, state: str) -> None:
     axes = "return document.querySelectorAll('#profiles svg .axes').length"
     settle(browser, "the profiles", lambda: js(axes) >= 3)
     settle(browser, "the sonde's card", lambda: "Sonde (last reading)" in js(TEXT_JS, "#summary"))
+    settle(
+        browser,
+        "the day's science",
+        lambda: (
+            js(TEXT_JS, "#numbers")
+            and "Working out" not in js(TEXT_JS, "#numbers") + js(TEXT_JS, "#science-files")
+        ),
+    )
     settle(browser, "the drawings at the width shown", lambda: js(DRAWN_JS))
     words = {"idle": "No cast running", "casting": "going down", "stranded": "stranded",
              "gone": "The daemon does not answer"}[state.removesuffix("-live")]  # fmt: skip

@@ -80,6 +80,16 @@ def _checks(browser: Any, state: str) -> None:
     series = "return document.querySelectorAll('#profiles .series.' + arguments[0]).length"
     for way in ("held",) if state in ("stranded", "gone") else ("down", "up"):
         assert js(series, way) >= 1, (state, way)
+    # The day's science: the lake floor under the map, each station's numbers, the
+    # binned profile over the readings, the thermocline marked where there is one.
+    if state in ("idle", "casting"):  # the first survey's: three stations measured
+        # Made again when the journal has grown and the making is due (science.py).
+        settle(browser, "the lake floor on the map", lambda: "Lake floor from " in js(
+            TEXT_JS, "#bed-legend"))  # fmt: skip
+        assert js("return document.querySelectorAll('#map .bed-cell').length") >= 1
+        numbers = js(TEXT_JS, "#numbers")
+        assert "Thermocline (m)" in numbers and "S1 · cast" in numbers, numbers
+        assert js(series, "binned") >= 1 and js(series, "raw") == 0  # readings: points only
     # Events are sentences, their details folded away.
     events = js("return [...document.querySelectorAll('#events > li')].map(li => li.innerText)")
     assert any(" at S1 started: " in e for e in events), events[:5]
@@ -104,6 +114,31 @@ def _stranded_said(banner: str) -> None:
     assert "Where the probe is: at 0.50 m" in banner, banner
     assert "What the autopilot is told: R-L" in banner and "instead of R-F" in banner, banner
     assert "To release:" in banner and "cc-daemon winch home" in banner, banner
+
+
+def _science_files(browser: Any) -> None:
+    """The science's downloads: each a file its reader opens."""
+    netcdf4 = pytest.importorskip("netCDF4")
+    links = browser.execute_script(
+        "return [...document.querySelectorAll('#science-files a')]"
+        ".map(a => [a.dataset.format, a.href])"
+    )
+    names = [name for name, _ in links]
+    for name in ("bathymetry.nc", "contours.geojson", "profiles.nc", "profiles.csv",
+                 "stations.csv", "stations.geojson"):  # fmt: skip
+        assert name in names, (name, names)
+    for name, link in links:
+        body = fetch(link)
+        if name.endswith(".csv"):
+            lines = [line for line in body.decode().splitlines() if not line.startswith("#")]
+            assert list(csv.DictReader(lines)), name
+        elif name.endswith(".geojson"):
+            assert json.loads(body)["type"] == "FeatureCollection", name
+        elif name.endswith(".nc"):
+            with netcdf4.Dataset("in-memory.nc", memory=body) as nc:
+                assert nc.dimensions, name
+        else:
+            assert body[:4] in (b"II*\x00", b"MM\x00*"), name  # a TIFF
 
 
 def _downloads(browser: Any) -> None:
@@ -158,6 +193,7 @@ def test_the_field_page_through_a_day_at_a_phones_and_a_laptops_width(tmp_path: 
         _checks(browser, state)
         if state == "idle":
             _downloads(browser)
+            _science_files(browser)
 
     run_the_day(tmp_path, visit)
 

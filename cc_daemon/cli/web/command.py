@@ -63,6 +63,7 @@ def run_web(args: argparse.Namespace) -> int:
         journal=journal_path(argparse.Namespace(db=args.db or settings.store.path)),
         password_hash=web.password_hash,
         hosts=frozenset(web.hosts),
+        survey=settings.survey,
     )
 
     def ready(address: str, connections: int) -> None:

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from cc_daemon.export import estimates
-from cc_daemon.export.mapframe import LocalFrame
+from cc_daemon.export.mapframe import EARTH_RADIUS_M, LocalFrame
 from cc_daemon.store import JournalReader, StoreError
 from cc_daemon.store.records import EventRecord
 from cc_daemon.store.stationrows import first_events
@@ -71,6 +71,9 @@ def survey_casts(path: Path, survey: int) -> dict[str, Any]:
     if frame is None:
         return out
     out["origin"] = frame.origin_text()
+    # The frame itself, to draw longitudes and latitudes (the science's) in it.
+    out["frame"] = {"lat0": frame.lat0, "lon0": frame.lon0, "cos_lat": frame.cos_lat,
+                    "radius_m": EARTH_RADIUS_M}  # fmt: skip
     named = names(stations)
     for cast in casts:
         row = cast._asdict()

@@ -112,9 +112,10 @@ export function depthTime(svg, points, { planned = null, height = 220 } = {}) {
 }
 
 // One parameter (x) against depth (y, down): each layer its own series, told apart
-// by line and marker (the way down and the way up, and any layer added later).
-// `layers`: [{cls, points: [[value, depth]]}].
-export function profile(svg, layers, { label, height = 240 } = {}) {
+// by line and marker (the way down and the way up, the readings under a binned
+// profile as points only). `layers`: [{cls, points: [[value, depth]], line, dots}];
+// `marks`: the thermocline (a dashed line) and the metalimnion (a band), in metres.
+export function profile(svg, layers, { label, height = 240, marks = null } = {}) {
   const W = widthOf(svg, 300), H = height;
   svg.replaceChildren();
   svg.setAttribute("viewBox", `0 0 ${W} ${H}`);
@@ -129,14 +130,55 @@ export function profile(svg, layers, { label, height = 240 } = {}) {
   const deepest = Math.max(0.5, ...all.map((p) => p[1]));
   const { sx, sy } = axes(svg, W, H, { lo: lo - pad, hi: hi + pad, label },
     { lo: 0, hi: deepest * 1.08, down: true, label: "depth (m)" });
+  const x0 = sx(lo - pad), x1 = sx(hi + pad);
+  if (marks && marks.top !== null && marks.bottom !== null) {
+    svg.append(svgEl("rect", { x: x0, y: sy(marks.top), width: x1 - x0,
+      height: Math.max(1, sy(marks.bottom) - sy(marks.top)), class: "metalimnion" }));
+  }
+  if (marks && marks.thermocline !== null) {
+    svg.append(svgEl("line", { x1: x0, x2: x1, y1: sy(marks.thermocline), y2: sy(marks.thermocline),
+      class: "thermocline" }));
+  }
   for (const layer of layers) {
     if (!layer.points.length) continue;
-    svg.append(svgEl("polyline", { points: path(layer.points, sx, sy), class: `series ${layer.cls}` }));
+    if (layer.line !== false) {
+      svg.append(svgEl("polyline", { points: path(layer.points, sx, sy), class: `series ${layer.cls}` }));
+    }
+    if (layer.dots === false) continue;
     for (const p of layer.points) {
       svg.append(svgEl("circle", { cx: sx(p[0]).toFixed(1), cy: sy(p[1]).toFixed(1), r: 2.5,
         class: `dot ${layer.cls}` }));
     }
   }
+}
+
+// The lake floor under the map: each cell shaded by its depth, each contour a line; the
+// places for the contours' labels (the middle of each level's longest line).
+function drawBed(svg, bed, sx, sy) {
+  const g = svgEl("g", { class: "bed" });
+  for (const c of bed.cells) {
+    const fill = shadeOf(c.depth, bed.deepest);  // its edge too: no hairline between cells
+    g.append(svgEl("polygon", { points: path(c.points, sx, sy), class: "bed-cell", fill, stroke: fill }));
+  }
+  const labels = [];
+  for (const c of bed.contours) {
+    let longest = [];
+    for (const line of c.lines) {
+      g.append(svgEl("polyline", { points: path(line, sx, sy), class: "contour" }));
+      if (line.length > longest.length) longest = line;
+    }
+    if (longest.length) {
+      const p = longest[Math.floor(longest.length / 2)];
+      labels.push({ x: sx(p[0]), y: sy(p[1]), text: `${+c.depth.toFixed(2)} m` });
+    }
+  }
+  svg.append(g);
+  return labels;
+}
+// A depth's shade: pale shallows to deep blue (as the legend's bar).
+export function shadeOf(depth, deepest) {
+  const f = Math.max(0, Math.min(1, depth / deepest));
+  return `hsl(205, 65%, ${Math.round(90 - 55 * f)}%)`;
 }
 
 // Does box a overlap box b (SVG units)?
@@ -155,8 +197,9 @@ export function surveyMap(svg, data, { onStation, height } = {}) {
   const W = widthOf(svg), H = height || Math.round(Math.min(Math.max(W * 0.75, 260), 520));
   svg.replaceChildren();
   svg.setAttribute("viewBox", `0 0 ${W} ${H}`);
-  const xs = data.track.map((p) => p[0]).concat(data.stations.map((s) => s.east_m));
-  const ys = data.track.map((p) => p[1]).concat(data.stations.map((s) => s.north_m));
+  const corners = data.bed ? data.bed.cells.flatMap((c) => c.points) : [];
+  const xs = data.track.map((p) => p[0]).concat(data.stations.map((s) => s.east_m), corners.map((p) => p[0]));
+  const ys = data.track.map((p) => p[1]).concat(data.stations.map((s) => s.north_m), corners.map((p) => p[1]));
   if (!xs.length) return;
   const L = 46, R = 10, T = 10, B = 38;
   const ex = Math.max(20, Math.max(...xs) - Math.min(0, ...xs)), ny = Math.max(20, Math.max(...ys) - Math.min(0, ...ys));
@@ -165,10 +208,11 @@ export function surveyMap(svg, data, { onStation, height } = {}) {
   const half = { x: (W - L - R) / 2 / k, y: (H - T - B) / 2 / k };
   const { sx, sy } = axes(svg, W, H, { lo: cx - half.x, hi: cx + half.x, label: `metres east of ${data.origin}` },
     { lo: cy - half.y, hi: cy + half.y, label: "metres north" });
+  const taken = [];
+  const contourLabels = data.bed ? drawBed(svg, data.bed, sx, sy) : [];
   if (data.track.length > 1) {
     svg.append(svgEl("polyline", { points: path(data.track, sx, sy), class: "track" }));
   }
-  const taken = [];
   const marks = [];
   for (const s of data.stations) {
     const x = sx(s.east_m), y = sy(s.north_m);
@@ -191,6 +235,17 @@ export function surveyMap(svg, data, { onStation, height } = {}) {
     svgEl("text", { x: (x0 + x1) / 2, y: yb - 4, "text-anchor": "middle", class: "tick" }, `${bar} m`));
   taken.push({ x: x0 - 4, y: yb - 18, width: x1 - x0 + 8, height: 22 });
   const area = { x: L, y: T, width: W - L - R, height: H - T - B };
+  // Each contour's depth once, where it covers nothing already there; else not at all.
+  for (const { x, y, text } of contourLabels) {
+    const t = svgEl("text", { x: x.toFixed(1), y: (y + 4).toFixed(1), "text-anchor": "middle",
+      class: "contour-label" }, text);
+    svg.append(t);
+    const b = t.getBBox();
+    const inside = b.x >= area.x && b.y >= area.y && b.x + b.width <= area.x + area.width
+      && b.y + b.height <= area.y + area.height;
+    if (!inside || taken.some((o) => overlap(b, o) > 0)) t.remove();
+    else taken.push(b);
+  }
   for (const { x, y, s } of marks) {
     let best = null;
     let label = null;

@@ -1,29 +1,15 @@
 // "Today" and "Take it home": the journal's surveys, the chosen survey's map, casts,
 // profiles and events, and its downloads. Read-only: it only ever sends GET.
 import { depthTime, profile, surveyMap } from "./draw.js";
+import { chunk, el, prose } from "./dom.js";
+import { bedLayers, bedLegend, binnedLayers, scienceFiles, stationsTable, stratification } from "./science.js";
 import { clock, eventSentence, metres, plural, unitText, utc, words } from "./words.js";
 
-const $ = (sel) => document.querySelector(sel);
-export const today = { survey: null, latest: null, cast: null, map: null, profile: null, casts: [] };
+export { chunk, el, prose };
 
-export function el(tag, attrs, ...children) {
-  const node = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs || {})) if (v !== undefined) node.setAttribute(k, v);
-  for (const c of children) if (c !== undefined && c !== null) node.append(c);
-  return node;
-}
-// A chunk of text that wraps as a whole: no line ever breaks inside it.
-export function chunk(text, cls) { return el("span", { class: cls ? `chunk ${cls}` : "chunk" }, text); }
-// Text whose lines break only between words: a path may also break after one of its
-// slashes (a hyphen is a place to break already), never inside a name.
-export function prose(text) {
-  const out = document.createDocumentFragment();
-  String(text).split(/(?<=\/)/).forEach((piece, i) => {
-    if (i) out.append(el("wbr"));
-    out.append(piece);
-  });
-  return out;
-}
+const $ = (sel) => document.querySelector(sel);
+export const today = { survey: null, latest: null, cast: null, map: null, profile: null, casts: [],
+  science: null };
 
 export async function getJSON(url) {
   const r = await fetch(url, { cache: "no-store" });
@@ -83,7 +69,9 @@ export async function chooseSurvey(id) {
   for (const b of document.querySelectorAll("#surveys button")) {
     b.classList.toggle("chosen", Number(b.dataset.survey) === id);
   }
+  today.science = null;
   downloads(id);
+  showScience();
   await refreshSurvey(id, true);
 }
 
@@ -99,6 +87,7 @@ async function refreshSurvey(id, choose) {
     const measured = data.casts.filter((c) => c.samples > 0);
     if (choose && measured.length) await chooseCast(measured[measured.length - 1].id);
     await loadEvents(id, data.casts);
+    await loadScience(id);
   } catch (e) { $("#map-title").textContent = `Map: ${e.message}`; }
 }
 
@@ -133,7 +122,7 @@ function prepareMap(data) {
     return { ...s, outcome: last ? last.outcome : null, label: `${s.name} ${what}`,
       summary: !last ? "planned, no cast asked" : `cast ${last.id}, ${outcomeWords(last)}`, casts };
   });
-  return { origin: data.origin, track: data.track, stations };
+  return { origin: data.origin, frame: data.frame, track: data.track, stations };
 }
 
 export function drawMap() {
@@ -144,7 +133,8 @@ export function drawMap() {
     return;
   }
   $("#map-title").textContent = `Map of survey ${today.survey}: ${plural(data.stations.length, "station")}`;
-  surveyMap($("#map"), data, { onStation: (s) => chooseCast(s.cast_ids[s.cast_ids.length - 1]) });
+  surveyMap($("#map"), { ...data, bed: bedLayers(today.science, data.frame) },
+    { onStation: (s) => chooseCast(s.cast_ids[s.cast_ids.length - 1]) });
 }
 
 export async function chooseCast(id) {
@@ -171,10 +161,16 @@ function ways(readings) {
 
 // The layers of one parameter's profile: each a series the chart draws apart. More
 // layers are drawn the same way.
-export function profileLayers(p, name) {
+export function profileLayers(p, name, binnedWays = new Set()) {
   const usable = (r) => typeof r.values[name] === "number" && typeof r.depth_m === "number";
   const [down, up, held] = ways(p.sonde.filter(usable));
-  const layer = (cls, label, rs) => ({ cls, label, points: rs.map((r) => [r.values[name], r.depth_m]) });
+  // Under its binned profile a way's readings are points; alone (no bins yet, or bins
+  // made before the cast came up), a line joins them.
+  const layer = (cls, label, rs) => {
+    const under = binnedWays.has(cls);
+    return { cls: under ? `${cls} raw` : cls, label: under ? `${label}: readings` : label, line: !under,
+      points: rs.map((r) => [r.values[name], r.depth_m]) };
+  };
   return [layer("down", "way down", down), layer("up", "way up", up), layer("held", "stranded", held)]
     .filter((l) => l.points.length);
 }
@@ -199,9 +195,17 @@ export function drawProfile() {
     if (q.name === "depth" || !p.sonde.some((r) => typeof r.values[q.name] === "number")) continue;
     const u = unitText(q.unit);
     const axis = `${q.name}${u ? ` (${u})` : ""}`;
-    const layers = profileLayers(p, q.name);
-    const f = figure(`${q.long_name}${u ? ` (${u})` : ""}`, layers.map((l) => [l.label, `${l.cls}-key`]),
-      (svg) => profile(svg, layers, { label: axis }));
+    const binned = binnedLayers(today.science, c.id, q.name);
+    const binnedWays = new Set(binned.map((l) => l.cls.split(" ")[0]));
+    const layers = profileLayers(p, q.name, binnedWays).concat(binned);
+    const marks = q.name === "temperature" ? stratification(today.science, c.id) : null;
+    const keys = layers.map((l) => [l.label, l.cls.split(" ").map((k) => `${k}-key`).join(" ")]);
+    if (marks && marks.thermocline !== null) keys.push([`thermocline ${metres(marks.thermocline)}`, "thermocline-key"]);
+    if (marks && marks.top !== null && marks.bottom !== null) {
+      keys.push([`metalimnion ${metres(marks.top)} to ${metres(marks.bottom)}`, "metalimnion-key"]);
+    }
+    const f = figure(`${q.long_name}${u ? ` (${u})` : ""}`, keys,
+      (svg) => profile(svg, layers, { label: axis, marks }));
     f.svg.dataset.parameter = q.name;
     drawn.push(f);
   }
@@ -257,6 +261,29 @@ const FILES = [
   ["nc", "The winch's profiles (NetCDF-CF)", "depth against time, cast by cast",
     ["export", "--format netcdf", "-o FILE"]],
 ];
+
+// The day's science: made by the server when asked (seconds on a long survey), then
+// redrawn into the map, the stations table, the profiles and the files.
+async function loadScience(id) {
+  let doc;
+  try { doc = await getJSON(`/api/surveys/${id}/science`); }
+  catch (e) { if (today.survey === id) $("#numbers").replaceChildren(el("p", {}, `No science: ${e.message}`)); return; }
+  if (today.survey !== id) return;
+  const fresh = !today.science || today.science.made_wall_s !== doc.made_wall_s;
+  today.science = doc;
+  if (!fresh) return;
+  showScience();
+  drawMap();
+  drawProfile();
+}
+
+function showScience() {
+  const id = today.survey;
+  $("#bed-legend").replaceChildren(...bedLegend(today.science));
+  $("#numbers").replaceChildren(stationsTable(today.science, today.casts));
+  $("#science-files").replaceChildren(el("p", {}, `The day's science of survey ${id}, as`
+    + " `cc-daemon map` and `cc-daemon profiles` write it:"), scienceFiles(today.science, id));
+}
 
 function downloads(id) {
   const list = el("ul", { class: "files" });
