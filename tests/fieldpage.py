@@ -299,6 +299,11 @@ def ready(browser: Any, state: str) -> None:
             and "Working out" not in js(TEXT_JS, "#numbers") + js(TEXT_JS, "#science-files")
         ),
     )
+    if not state.endswith("-live"):  # the journal no longer grows: the science catches up
+        science = "return document.querySelector('#today').innerText"
+        # Made again when due: 20 times the last making's time, longer on a loaded machine.
+        until_sync(lambda: "has grown since" not in js(science), "the day's science made again",
+                   DEADLINE_S * 3, every=0.5)  # fmt: skip
     settle(browser, "the drawings at the width shown", lambda: js(DRAWN_JS))
     words = {"idle": "No cast running", "casting": "going down", "stranded": "stranded",
              "gone": "The daemon does not answer"}[state.removesuffix("-live")]  # fmt: skip

@@ -89,7 +89,9 @@ def _checks(browser: Any, state: str) -> None:
         assert js("return document.querySelectorAll('#map .bed-cell').length") >= 1
         numbers = js(TEXT_JS, "#numbers")
         assert "Thermocline (m)" in numbers and "S1 · cast" in numbers, numbers
-        assert js(series, "binned") >= 1 and js(series, "raw") == 0  # readings: points only
+        # Bins made from every reading of the cast (the page asks again when they are due).
+        settle(browser, "the binned profile", lambda: js(series, "binned") >= 1)
+        assert js(series, "raw") == 0  # under the bins, the readings are points only
     # Events are sentences, their details folded away.
     events = js("return [...document.querySelectorAll('#events > li')].map(li => li.innerText)")
     assert any(" at S1 started: " in e for e in events), events[:5]

@@ -23,6 +23,7 @@ from aiohttp.test_utils import TestClient
 
 from cc_daemon.cli.web import science
 from cc_daemon.cli.web.server import Sources
+from cc_daemon.store import JournalReader
 from tests import bathykit, webkit
 from tests.profilekit import CastSpec, write_journal
 
@@ -150,6 +151,13 @@ async def test_a_survey_of_casts_gives_the_profiles_commands_numbers(
         # Each cast's binned profile: the way down and the way up, from profiles.csv.
         profiles = (await _get(client, f"/download/survey/{CASTS}/profiles.csv")).decode()
         assert _rows(profiles) == _rows((commands / "profiles" / "profiles.csv").read_text())
+        # What was binned, per cast: the page overlays the bins only on as many readings.
+        with JournalReader(journal) as reader:
+            reader.select_survey(CASTS)
+            samples = reader.sonde_samples()
+        assert p["readings"] == {
+            str(c): sum(s.cast_id == c for s in samples) for c in {s.cast_id for s in samples}
+        }
         for cast in p["binned"].values():
             assert cast["temperature"]["down"] and cast["temperature"]["up"]
             depths = [d for _, d, _ in cast["temperature"]["down"]]
@@ -174,11 +182,13 @@ async def test_a_survey_is_made_again_only_when_its_journal_changed_and_fresh_s_
     async with page(db) as client:
         first = json.loads(await _get(client, f"/api/surveys/{CASTS}/science"))
         (made,) = _made(tmp_path, "cc-daemon-web-science-*/survey-*")
+        assert first["current"] and first["due_wall_s"] >= first["made_wall_s"]
         again = json.loads(await _get(client, f"/api/surveys/{CASTS}/science"))
         assert again["made_wall_s"] == first["made_wall_s"]  # unchanged: kept
         write_journal(db, [CastSpec(seed=3)])  # the journal grows (a third survey)
         again = json.loads(await _get(client, f"/api/surveys/{CASTS}/science"))
         assert again["made_wall_s"] == first["made_wall_s"]  # not due yet: kept
+        assert not again["current"]  # and said: the page asks again when it is due
         monkeypatch.setattr(science, "FRESH_S", 0.0)
         monkeypatch.setattr(science, "COST_FACTOR", 0.0)
         again = json.loads(await _get(client, f"/api/surveys/{CASTS}/science"))
@@ -192,3 +202,17 @@ async def test_a_survey_is_made_again_only_when_its_journal_changed_and_fresh_s_
             await _get(client, f"/api/surveys/{survey}/science")
         assert len(_made(tmp_path, "cc-daemon-web-science-*/survey-*")) == science.KEPT
     assert not _made(tmp_path, "cc-daemon-web-science-*")  # removed when the page stops
+
+
+def test_a_fault_in_the_maps_code_leaves_the_profiles_made_and_says_so(
+    journal: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from cc_daemon.export import bathymap
+
+    def broken(*args: Any, **kwargs: Any) -> Any:
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(bathymap, "make_map", broken)
+    doc = science.make(journal, CASTS, None, tmp_path / "made")
+    assert "RuntimeError" in doc["map"]["why"], doc["map"]
+    assert doc["profiles"]["stations"]["rows"]  # the profiles made all the same

@@ -219,6 +219,16 @@ def latest(path: Path, now_wall_s: float) -> dict[str, Any]:
     return {**out, "sonde": _clean(reading)}
 
 
+def aged(doc: dict[str, Any], now_wall_s: float) -> dict[str, Any]:
+    """`latest`'s answer with each reading's age as of `now_wall_s` (the answer is shared
+    among the page's clients for a few seconds; an age must not be)."""
+    out = dict(doc)
+    for key in ("sonde", "sonar"):
+        if out.get(key):
+            out[key] = {**out[key], "age_s": round(now_wall_s - out[key]["wall_s"], 1)}
+    return out
+
+
 def _began(reader: JournalReader, session: int | None) -> list[EventRecord]:
     """The session's `sonde_started` event (the sonde's register map), if among its first."""
     if session is None:

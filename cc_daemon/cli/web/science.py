@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import structlog
+
 from cc_daemon.cli.web.journaldata import NotFound, _clean, _open
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import StoreError
@@ -37,6 +39,8 @@ from cc_daemon.store import StoreError
 if TYPE_CHECKING:
     from cc_daemon.config.survey import SurveySettings
     from cc_daemon.export.bathymap import SurveyMap
+
+log = structlog.get_logger(__name__)
 
 FRESH_S = 10.0
 COST_FACTOR = 20.0
@@ -120,6 +124,12 @@ class Science:
                 await loop.run_in_executor(self._thread, _remove, path)
             return made
 
+    def state(self, made: Made) -> dict[str, Any]:
+        """Whether the journal has changed since `made` (`current`), and when a changed
+        journal's survey is made again (`due_wall_s`): for the page to ask again then."""
+        due = time.time() + _due(made) - time.monotonic()
+        return {"current": signature(self._journal) == made.signature, "due_wall_s": due}
+
     def close(self) -> None:
         self._thread.shutdown(wait=True, cancel_futures=True)
         if self._root is not None:
@@ -149,6 +159,11 @@ def make(
         bed: dict[str, Any] = {"why": MISSING_LIBRARY.format(name=exc.name, what="the map")}
     except ValueError as exc:
         bed = {"why": str(exc)}
+    except (NotFound, StoreError):
+        raise
+    except Exception as exc:  # a fault of the map's own code: the profiles still made
+        log.error("the day's map could not be made", survey=survey, exc_info=exc)
+        bed = {"why": f"the map could not be made ({type(exc).__name__}: see the page's log)"}
     else:
         from cc_daemon.export.bathymap import trusted_hypsography
 
@@ -287,11 +302,22 @@ def _profiles(journal: Path, survey: int, lake: Any, directory: Path) -> dict[st
     notes = [*made.notes, *(line for line in said if "not written" in line)]
     return {
         "bin_m": made.settings.bin_m,
+        "lag_correction": made.settings.method,  # inverse, shift or none
+        "lags_s": {name: t for name, t in made.settings.response_s.items() if t > 0},
+        "readings": _per_cast(samples),  # what was binned: the page's own count may be newer
         "notes": notes,
         "files": sorted(p.name for p in directory.iterdir() if not p.name.startswith(".")),
         "stations": _rows(directory / "stations.csv"),
         "binned": _binned(_rows(directory / "profiles.csv")),
     }
+
+
+def _per_cast(samples: list[Any]) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for sample in samples:
+        if sample.cast_id is not None:
+            counts[str(sample.cast_id)] = counts.get(str(sample.cast_id), 0) + 1
+    return counts
 
 
 def _number(text: str) -> Any:

@@ -157,6 +157,7 @@ async def _journal(
     call: Callable[..., Any],
     *args: Any,
     shared: tuple[Shared, str] | None = None,
+    finish: Callable[[Any], Any] | None = None,
 ) -> web.Response:
     async def produce() -> Any:
         async with gate:
@@ -168,7 +169,7 @@ async def _journal(
         raise Refused(404, str(exc)) from None
     except StoreError as exc:
         raise Refused(503, str(exc)) from None
-    return web.json_response(body)
+    return web.json_response(body if finish is None else finish(body))
 
 
 async def _first(chunks: AsyncIterator[bytes], survey: int) -> bytes | None:
@@ -243,9 +244,11 @@ def build_app(sources: Sources, limits: Limits | None = None) -> web.Application
         return await _journal(gate, journaldata.cast_profile, sources.journal, n)
 
     async def api_latest(request: web.Request) -> web.Response:
+        # Shared for a few seconds; each reading's age is as of this answer.
         return await _journal(
-            gate, journaldata.latest, sources.journal, time.time(), shared=(shared, "latest")
-        )
+            gate, journaldata.latest, sources.journal, time.time(), shared=(shared, "latest"),
+            finish=lambda doc: journaldata.aged(doc, time.time()),
+        )  # fmt: skip
 
     async def api_events(request: web.Request) -> web.Response:
         text = request.query.get("survey")
@@ -282,7 +285,8 @@ def build_app(sources: Sources, limits: Limits | None = None) -> web.Application
 
     async def api_science(request: web.Request) -> web.Response:
         n = number(request.match_info["n"], "survey")
-        return web.json_response((await science_of(n)).doc)
+        found = await science_of(n)
+        return web.json_response({**found.doc, **made.state(found)})
 
     async def product(request: web.Request) -> web.StreamResponse:
         n, name = number(request.match_info["n"], "survey"), request.match_info["name"]

@@ -240,9 +240,10 @@ export function surveyMap(svg, data, { onStation, height } = {}) {
     const t = svgEl("text", { x: x.toFixed(1), y: (y + 4).toFixed(1), "text-anchor": "middle",
       class: "contour-label" }, text);
     svg.append(t);
-    const b = t.getBBox();
-    const inside = b.x >= area.x && b.y >= area.y && b.x + b.width <= area.x + area.width
-      && b.y + b.height <= area.y + area.height;
+    const r = t.getBBox();
+    const b = { x: r.x - 4, y: r.y - 2, width: r.width + 8, height: r.height + 4 };  // a gap around it
+    const inside = r.x >= area.x && r.y >= area.y && r.x + r.width <= area.x + area.width
+      && r.y + r.height <= area.y + area.height;
     if (!inside || taken.some((o) => overlap(b, o) > 0)) t.remove();
     else taken.push(b);
   }

@@ -28,8 +28,22 @@ export function bedLegend(science) {
   const bed = science && science.map;
   if (!bed) return [];
   if (bed.why) return [`Lake floor: not mapped: ${bed.why}.`];
-  return [el("span", { class: "chunk" }, "shallow ", el("span", { class: "depth-bar" }), " deep"), " ",
-    bedWords(science)];
+  if (!bed.cells.length) {
+    return [`Lake floor: no cell mapped yet from ${plural(bed.figures.soundings.kept, "sounding")}`
+      + ` (${madeWords(science)}): a second line gives the first cells.`];
+  }
+  const depths = bed.cells.map(([, depth]) => depth);
+  const bar = el("span", { class: "chunk" }, metres(Math.min(...depths), 1), " ",
+    el("span", { class: "depth-bar" }), " ", metres(Math.max(...depths), 1));
+  return [el("span", { class: "bar-line" }, "Depth: ", bar), bedWords(science)];
+}
+
+// When the science was made and, if the journal has grown since, when it is made again.
+export function madeWords(science) {
+  if (!science) return "";
+  const made = `made ${clock(science.made_wall_s)} UTC`;
+  return science.current ? made
+    : `${made}; the journal has grown since: made again from ${clock(science.due_wall_s)} UTC`;
 }
 
 function bedWords(science) {
@@ -40,14 +54,14 @@ function bedWords(science) {
   const trust = typeof f.cv_rmse_m === "number"
     ? `within ${metres(f.cv_rmse_m)} (cross-validated RMSE, ${plural(f.cv_predicted, "held-out block")})`
     : "a sketch: too few lines to estimate its accuracy";
-  return `Lake floor from ${plural(f.soundings.kept, "sounding")} (made ${clock(science.made_wall_s)} UTC):`
-    + ` shaded 0 to ${metres(f.max_depth_m, 1)} deep;${every} ${trust}.`;
+  return `Lake floor from ${plural(f.soundings.kept, "sounding")} (${madeWords(science)}):`
+    + ` deepest ${metres(f.max_depth_m, 1)};${every} ${trust}.`;
 }
 
 // Why a number is missing, as the stations table's `missing` column says it.
 const MISSING = {
   mixed: "mixed: no thermocline", at_edge: "at the cast's edge", not_reached: "not reached",
-  no_hypsography: "no lake map", too_few: "too few readings",
+  no_hypsography: "needs a lake map that can be trusted", too_few: "too few readings",
 };
 
 function cell(row, at, name, digits = 2) {
@@ -76,7 +90,7 @@ const COLUMNS = [
   ["Metalimnion (m)", (r, at) => range(r, at, "metalimnion_top [m]", "metalimnion_bottom [m]")],
   ["Chlorophyll maximum (m)", (r, at) => cell(r, at, "dcm [m]")],
   ["Oxycline (m)", (r, at) => cell(r, at, "oxycline [m]")],
-  ["Oxygen under 2 mg/L from (m)", (r, at) => cell(r, at, "hypoxia_top [m]")],
+  ["O₂ under 2 mg/L from (m)", (r, at) => cell(r, at, "hypoxia_top [m]")],
   ["Surface, bottom (°C)", (r, at) => `${cell(r, at, "surface_temperature [degC]")}, ${cell(r, at, "bottom_temperature [degC]")}`],
   ["Schmidt stability (J/m²)", (r, at) => cell(r, at, "schmidt_stability [J/m2]", 1)],
 ];
@@ -97,20 +111,28 @@ export function stationsTable(science, casts) {
       ...COLUMNS.map(([title, show]) => el("td", { "data-label": title }, show(r, at))));
   });
   const note = `Read from each cast's way down, binned every ${metres(p.bin_m)}, with rLakeAnalyzer's`
-    + " definitions (the same numbers as stations.csv below).";
+    + ` definitions, the sensors' lags corrected (the same numbers as stations.csv below;`
+    + ` ${madeWords(science)}).`;
   return el("div", {}, el("table", { class: "numbers" }, el("thead", {}, head), el("tbody", {}, ...rows)),
     el("p", { class: "note" }, note, ...p.notes.map((n) => el("span", { class: "chunk-note" }, ` ${n}.`))));
 }
 
 // One cast's binned profile of one parameter: a layer per way, drawn over the readings.
-export function binnedLayers(science, castId, name) {
+// Only when the bins were made from every reading the page has of the cast: bins made
+// while it ran are not drawn over its later readings.
+export function binnedLayers(science, castId, name, readings) {
   const p = science && science.profiles;
   const found = p && p.binned && p.binned[String(castId)] && p.binned[String(castId)][name];
-  if (!found) return [];
-  const bin = metres(p.bin_m);
+  if (!found || (p.readings || {})[String(castId)] !== readings) return [];
+  const how = `binned every ${metres(p.bin_m)}${corrected(p, name) ? ", lag-corrected" : ""}`;
   return [["down", "way down"], ["up", "way up"]].filter(([way]) => found[way].length)
-    .map(([way, label]) => ({ cls: `${way} binned`, label: `${label}, binned every ${bin}`, dots: false,
+    .map(([way, label]) => ({ cls: `${way} binned`, label: `${label}, ${how}`, dots: false,
       points: found[way].map(([v, d]) => [v, d]) }));
+}
+
+// Whether a parameter's binned values were corrected for its sensor's lag.
+function corrected(p, name) {
+  return p.lag_correction !== "none" && (p.lags_s || {})[name] > 0;
 }
 
 // The thermocline and the metalimnion of a cast, to mark on its temperature profile.
@@ -143,7 +165,8 @@ export function scienceFiles(science, id) {
   for (const [name, part, title, what] of PRODUCTS) {
     const made = science[part] || {};
     const command = el("span", { class: "command" }, chunk("The same file:"), " ", chunk("cc-daemon"), " ",
-      chunk(part), " ", chunk(`--survey ${id}`), " ", chunk("-o DIR"), " ", chunk(`(DIR/${name})`));
+      chunk(part), " ", chunk("--db JOURNAL"), " ", chunk(`--survey ${id}`), " ", chunk("-o DIR"), " ",
+      chunk(`(DIR/${name})`));
     if ((made.files || []).includes(name)) {
       list.append(el("li", {}, el("a", { href: `/download/survey/${id}/${name}`, download: `survey-${id}-${name}`,
         "data-format": name }, title), `: ${what}. `, command));

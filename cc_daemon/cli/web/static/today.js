@@ -9,7 +9,7 @@ export { chunk, el, prose };
 
 const $ = (sel) => document.querySelector(sel);
 export const today = { survey: null, latest: null, cast: null, map: null, profile: null, casts: [],
-  science: null };
+  science: null, scienceTimer: null };
 
 export async function getJSON(url) {
   const r = await fetch(url, { cache: "no-store" });
@@ -70,6 +70,7 @@ export async function chooseSurvey(id) {
     b.classList.toggle("chosen", Number(b.dataset.survey) === id);
   }
   today.science = null;
+  clearTimeout(today.scienceTimer);
   downloads(id);
   showScience();
   await refreshSurvey(id, true);
@@ -195,7 +196,7 @@ export function drawProfile() {
     if (q.name === "depth" || !p.sonde.some((r) => typeof r.values[q.name] === "number")) continue;
     const u = unitText(q.unit);
     const axis = `${q.name}${u ? ` (${u})` : ""}`;
-    const binned = binnedLayers(today.science, c.id, q.name);
+    const binned = binnedLayers(today.science, c.id, q.name, p.sonde.length);
     const binnedWays = new Set(binned.map((l) => l.cls.split(" ")[0]));
     const layers = profileLayers(p, q.name, binnedWays).concat(binned);
     const marks = q.name === "temperature" ? stratification(today.science, c.id) : null;
@@ -267,12 +268,22 @@ const FILES = [
 async function loadScience(id) {
   let doc;
   try { doc = await getJSON(`/api/surveys/${id}/science`); }
-  catch (e) { if (today.survey === id) $("#numbers").replaceChildren(el("p", {}, `No science: ${e.message}`)); return; }
+  catch (e) {
+    if (today.survey !== id) return;
+    for (const where of ["#numbers", "#science-files"]) $(where).replaceChildren(el("p", {}, `No science: ${e.message}`));
+    $("#bed-legend").replaceChildren();
+    return;
+  }
   if (today.survey !== id) return;
   const fresh = !today.science || today.science.made_wall_s !== doc.made_wall_s;
   today.science = doc;
-  if (!fresh) return;
+  clearTimeout(today.scienceTimer);
+  if (!doc.current) {  // ask again when the server will make it again
+    const wait = Math.max(1000, (doc.due_wall_s - Date.now() / 1000) * 1000 + 500);
+    today.scienceTimer = setTimeout(() => { if (today.survey === id) loadScience(id); }, wait);
+  }
   showScience();
+  if (!fresh) return;
   drawMap();
   drawProfile();
 }
@@ -282,7 +293,8 @@ function showScience() {
   $("#bed-legend").replaceChildren(...bedLegend(today.science));
   $("#numbers").replaceChildren(stationsTable(today.science, today.casts));
   $("#science-files").replaceChildren(el("p", {}, `The day's science of survey ${id}, as`
-    + " `cc-daemon map` and `cc-daemon profiles` write it:"), scienceFiles(today.science, id));
+    + " cc-daemon map and cc-daemon profiles write it (JOURNAL: the journal this page reads):"),
+  scienceFiles(today.science, id));
 }
 
 function downloads(id) {
@@ -290,9 +302,11 @@ function downloads(id) {
   for (const [fmt, title, what, [command, ...options]] of FILES) {
     const file = fmt.startsWith("sonde.") ? `${id}-${fmt}` : `${id}.${fmt}`;
     const line = el("span", { class: "command" }, chunk("The same file:"), " ", chunk("cc-daemon"), " ",
-      chunk(command), " ", chunk(`--survey ${id}`), ...options.flatMap((o) => [" ", chunk(o)]));
+      chunk(command), " ", chunk("--db JOURNAL"), " ", chunk(`--survey ${id}`),
+      ...options.flatMap((o) => [" ", chunk(o)]));
     list.append(el("li", {}, el("a", { href: `/download/survey/${file}`, download: `survey-${file}`,
       "data-format": fmt }, title), `: ${what}. `, line));
   }
-  $("#downloads").replaceChildren(el("p", {}, `Survey ${id}, as the commands write it:`), list);
+  $("#downloads").replaceChildren(el("p", {}, `Survey ${id}, as the commands write it (JOURNAL: the`
+    + " journal this page reads):"), list);
 }
