@@ -110,7 +110,13 @@ async def test_never_pays_out_beyond_the_end_of_the_line() -> None:
         await rig.settle()
         status = rig.winch.status()
         assert status.fault is not None and status.fault.startswith("end of line")
-        assert rig.drum.max_line_seen <= 1.0 + MPP
+        # The motor is stopped at the first pulse counted past the line's end ...
+        stopped_at = rig.winch.pulse_count
+        assert 1.0 <= stopped_at * MPP <= 1.0 + MPP
+        # ... and what the drum turns after it is the edge callback's latency (a busy
+        # machine took 15 mm once): less than another pulse, which would be counted.
+        assert rig.drum.max_line_seen < (stopped_at + 1) * MPP
+        assert rig.winch.pulse_count == stopped_at
         assert enable_history(rig)[-1][1] == 0.0
 
 
