@@ -89,8 +89,9 @@ def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.add_argument(
         "--lag-correction",
         choices=("inverse", "shift", "none"),
-        default="inverse",
-        help="how sensor lags are corrected (default: inverse; docs/profiles.md)",
+        default=None,
+        help="how sensor lags are corrected (default: inverse, or none for casts planned to"
+        " resolve no lag; docs/profiles.md)",
     )
     p.add_argument("--no-plots", action="store_true", help="write the tables only")
     p.set_defaults(handler=run)
