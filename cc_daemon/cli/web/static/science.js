@@ -110,11 +110,12 @@ export function stationsTable(science, casts) {
       el("th", { scope: "row" }, `${named.get(id) || "?"} · cast ${id}`),
       ...COLUMNS.map(([title, show]) => el("td", { "data-label": title }, show(r, at))));
   });
-  const note = `Read from each cast's way down, binned every ${metres(p.bin_m)}, with rLakeAnalyzer's`
-    + ` definitions, the sensors' lags corrected (the same numbers as stations.csv below;`
-    + ` ${madeWords(science)}).`;
+  const lags = p.lag_correction === "none" ? "not lag-corrected" : `its sensors' lags corrected (${p.lag_correction})`;
+  const note = `Read from each cast's way down, binned every ${metres(p.bin_m)}, ${lags}, with`
+    + ` rLakeAnalyzer's definitions (the same numbers as stations.csv below; ${madeWords(science)}).`;
+  const said = p.notes.map((n) => ` ${n.charAt(0).toUpperCase()}${n.slice(1)}.`);
   return el("div", {}, el("table", { class: "numbers" }, el("thead", {}, head), el("tbody", {}, ...rows)),
-    el("p", { class: "note" }, note, ...p.notes.map((n) => el("span", { class: "chunk-note" }, ` ${n}.`))));
+    el("p", { class: "note" }, note, ...said));
 }
 
 // One cast's binned profile of one parameter: a layer per way, drawn over the readings.
