@@ -91,8 +91,14 @@ test-load: load-tools
 coverage: $(TEST_STAMP) unit-tools browser-tools
 	$(BIN)/pytest -n 4 --cov=cc_daemon --cov-branch --cov-report=term:skip-covered $(PYTEST_ARGS)
 
+# make exits 2 for any failure of a recipe: the simulator's own status (docs/simulator.md,
+# "Exit status": 3 incomplete, 4 halted, ...) is said on the last line, and is the exit
+# status of `.venv/bin/cc-daemon --simulate` run without make.
 simulate: $(EXTRAS_STAMP)
-	$(BIN)/cc-daemon --simulate $(ARGS)
+	@echo "$(BIN)/cc-daemon --simulate $(ARGS)"
+	@$(BIN)/cc-daemon --simulate $(ARGS) || { status=$$?; \
+		echo "make: the simulator exited $$status (docs/simulator.md, Exit status); make itself exits 2" >&2; \
+		exit $$status; }
 
 extras: $(EXTRAS_STAMP)
 

@@ -36,7 +36,19 @@ from cc_daemon.store.synthetic import FakeClock, write_survey
 CLIENTS = 10
 PHASE_S = 10.0
 DOWNLOADERS = 8
-FIRST_LOAD = ["", "static/page.css", "static/page.js", "api/status", "api/latest", "api/surveys"]
+FIRST_LOAD = [
+    "",
+    "static/page.css",
+    "static/page.js",
+    "static/words.js",
+    "static/draw.js",
+    "static/today.js",
+    "static/dom.js",
+    "static/science.js",
+    "api/status",
+    "api/latest",
+    "api/surveys",
+]
 
 
 def get(url: str, timeout: float = 5.0) -> bytes:
@@ -110,6 +122,22 @@ def status_beside_downloads(url: str, survey: int) -> None:
     )
 
 
+def science_made(url: str, survey: int) -> None:
+    """The day's science: its first making (the map and the profiles, with their
+    files), then the same answer kept."""
+    times = []
+    for _ in range(2):
+        began = time.perf_counter()
+        body = get(url + f"api/surveys/{survey}/science", timeout=600)
+        times.append((time.perf_counter() - began) * 1000)
+    doc = json.loads(body)
+    parts = ", ".join(f"{k}: {doc[k].get('why', 'made')}" for k in ("map", "profiles"))
+    print(
+        f"  the day's science: made in {times[0]:.0f} ms, then kept: {times[1]:.1f} ms;"
+        f" {len(body)} bytes ({parts})"
+    )
+
+
 def main() -> int:
     with tempfile.TemporaryDirectory() as tmp, PtyPair(Path(tmp) / "tty") as pty:
         directory = Path(tmp)
@@ -141,6 +169,7 @@ def main() -> int:
                 + ", ".join(f"{k} {v}" for k, v in sizes.items())
                 + ")"
             )
+            science_made(url, survey)
             describe("no page open", latencies(pty.master_fd, PHASE_S))
             for name, period in (("10 pages at 1 Hz", 1.0), ("10 clients flat out", 0.0)):
                 stop, times = threading.Event(), []

@@ -34,6 +34,7 @@ class CastSpec:
     north_m: float = 0.0  # the station, metres north of the first
     sonar_m: float | None = 8.0  # the bottom the cast was planned on; None: cast blind
     mode: str = "continuous"
+    resolve: list[str] | None = None  # the plan's profile.resolve; None: not recorded
 
 
 def phases(series: Series) -> list[str]:
@@ -77,6 +78,8 @@ def write_journal(
             "mode": spec.mode,
             "profile": {"bin_m": 0.25, "min_count": 2, "descent_limit_m_s": 0.125},
         }
+        if spec.resolve is not None:
+            plan["profile"] = {**plan["profile"], "resolve": spec.resolve}  # type: ignore[dict-item]
         cast_id = journal.start_cast(
             station, planned_depth_m=spec.shape.depth_m, mode=spec.mode, plan=plan
         )

@@ -157,6 +157,17 @@ def test_cross_validation_holds_out_whole_blocks_and_takes_out_the_noise() -> No
     assert block_kfold(noisy, block_m=10.0) == cv  # seeded
 
 
+def test_the_maps_error_is_never_estimated_under_its_bias() -> None:
+    # Soundings a little noisy: the held-out medians' noise, taken out, leaves less than
+    # the residuals' mean; the estimate stays at the bias, never at a perfect 0.
+    x, y, _ = lines()
+    rng = np.random.default_rng(0)
+    noisy = plane(x, y) + rng.normal(0.0, 0.02, len(x))
+    cv = block_kfold(block_median(x, y, noisy, GridSpec.covering(x, y, 5.0)), block_m=10.0)
+    assert cv.bias_m != 0.0 and cv.rmse_m >= abs(cv.bias_m) > 0.0
+    assert cv.rmse_m <= cv.raw_rmse_m
+
+
 def test_the_line_spacing_is_read_from_the_track_and_sets_the_rules() -> None:
     for spacing_m in (10.0, 20.0, 50.0):
         x, y, segment = lines(spacing_m=spacing_m, count=6, length_m=300.0)
@@ -218,6 +229,14 @@ def test_a_line_sailed_half_way_is_not_bridged_to_by_the_hulls_sliver() -> None:
     assert grid.mapped[below].all()
     where_sailed = (np.abs(gy - (N0 + 50.0)) < 3.0) & (gx > E0 + 210) & (gx < E0 + 395)
     assert grid.mapped[where_sailed].all()
+
+
+def test_a_single_line_has_no_contours() -> None:
+    # The first line of a survey, gridded: one row of cells. contourpy refuses such a
+    # grid; there is nothing to contour (it crashed `cc-daemon map` and the page).
+    x = np.linspace(0.0, 60.0, 7)
+    assert contours(x, np.array([0.0]), np.full((1, 7), 2.0) + x / 100, 0.1) == []
+    assert contours(np.array([0.0]), x, np.full((7, 1), 2.0) + x[:, None] / 100, 0.1) == []
 
 
 def test_too_few_held_out_blocks_estimate_nothing() -> None:

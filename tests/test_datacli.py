@@ -47,6 +47,7 @@ def test_casts_lists_every_cast(
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split() == [
         "id",
+        "station",
         "start",
         "(UTC)",
         "lat",
@@ -64,19 +65,19 @@ def test_casts_lists_every_cast(
     assert len(rows) == summary.casts
     assert lines[-1].startswith("* the clock was not synchronised")
     first = rows[0].split()
-    assert first[:3] == ["1", "2024-06-01T08:00:00Z*", "40.4506308"]
-    assert first[7:9] == ["0", "skipped-shallow"]
+    assert first[:4] == ["1", "S1", "2024-06-01T08:00:00Z*", "40.4506308"]
+    assert first[8:10] == ["0", "skipped-shallow"]
     with JournalReader(db) as reader:
         cast2 = reader.casts(cast_id=2)[0]
     second = rows[1].split()
-    assert second[0] == "2"
-    assert second[4:8] == [
+    assert second[:2] == ["2", "S2"]
+    assert second[5:9] == [
         f"{cast2.water_depth_m:.2f}",
         "100",
         f"{cast2.reached_depth_m:.2f}",
         str(cast2.samples),
     ]
-    assert second[8] == "completed"
+    assert second[9] == "completed"
 
 
 def test_casts_since_and_running_casts(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -116,7 +117,7 @@ def test_casts_marks_a_blind_cast_and_shows_no_sentinel_as_water(
     journal.close()
     assert run("casts", "--db", str(db)) == 0
     row = capsys.readouterr().out.splitlines()[1]
-    assert row.split()[4:6] == ["-", "100"]  # not 4294967.30 m of water
+    assert row.split()[5:7] == ["-", "100"]  # not 4294967.30 m of water
     assert row.endswith("completed [blind: sonar distance 4294967295 mm cannot be a bottom]")
 
 

@@ -272,8 +272,13 @@ async def test_the_command_exits_1_on_a_fail_and_prints_the_fix(pi: Pi) -> None:
     assert result.returncode == 1, result.stdout + result.stderr
     assert "FAIL  login console" in result.stdout
     assert "fix: sudo raspi-config nonint do_serial_cons 1" in result.stdout
-    # Under --root systemd is not asked; the socket in the root still is.
-    assert "WARN  service" in result.stdout and "OK    status socket" in result.stdout
+    # Under --root systemd is not asked, and doctor says so; the socket in the root still is.
+    [service] = [line for line in result.stdout.splitlines() if line.startswith("SKIP")]
+    assert service.split()[:2] == ["SKIP", "service"]
+    assert f"not asked: --root {pi.root} is a system image" in service
+    assert "systemd could not be asked" not in result.stdout
+    assert "OK    status socket" in result.stdout
+    assert result.stdout.rstrip().endswith(", 1 not checked here")
     as_json = await asyncio.to_thread(
         subprocess.run,
         [sys.executable, "-m", "cc_daemon", "doctor", "--root", str(pi.root), "--json"],
@@ -398,3 +403,18 @@ async def test_the_field_page_beyond_localhost_without_a_password_is_a_warning(
     if level == "WARN":
         assert "no password" in checks["field page"].detail
         assert "--hash-password" in checks["field page"].fix
+
+
+async def test_with_no_file_the_environment_is_the_configuration(
+    pi: Pi, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (pi.root / "etc/cc-daemon/cc-daemon.toml").unlink()
+    monkeypatch.setenv("CC_DAEMON_WEB__LISTEN", "0.0.0.0:8080")
+    checks = await pi.checks()
+    assert checks["config"].level == "WARN" and "the defaults are in use" in checks["config"].detail
+    assert checks["field page"].level == "WARN", format_checks(list(checks.values()))
+    assert "web.listen = 0.0.0.0:8080 reaches beyond this Pi" in checks["field page"].detail
+    monkeypatch.setenv("CC_DAEMON_WEB__LISTEN", "nowhere")
+    checks = await pi.checks()
+    assert list(checks) == ["config"] and checks["config"].level == "FAIL"
+    assert "CC_DAEMON_WEB__LISTEN" in checks["config"].detail

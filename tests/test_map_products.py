@@ -224,6 +224,9 @@ def test_the_png_map_is_metric_labelled_and_says_simulated(mapped: Any) -> None:
     texts = [t.get_text() for t in ax.texts] + [t.get_text() for t in fig.texts]
     assert "SIMULATED" in texts
     assert any(t.endswith(" m") and t[0].isdigit() for t in texts)  # contour labels
+    # The stations named as the simulator's table and every command name them.
+    assert made.casts and {made.station_names[c.id] for c in made.casts} <= set(texts)
+    assert all(name.startswith("S") for name in made.station_names.values())
     colourbar = next(a for a in fig.axes if a.get_label() == "<colorbar>")
     assert "(m)" in colourbar.get_ylabel()
     assert "cross-validated RMSE" in ax.get_title()

@@ -64,12 +64,14 @@ def check_readable(fig: Any, labels: list[str]) -> None:
 
 def test_the_survey_map_is_metric_and_its_labels_are_readable(survey_db: Path) -> None:
     from cc_daemon.export.plot import _station_label, survey_figure
+    from cc_daemon.store.stations import names
 
     with JournalReader(survey_db) as reader:
-        casts, fixes = reader.casts(), reader.fixes()
+        casts, fixes, stations = reader.casts(), reader.fixes(), reader.stations()
     assert len(casts) >= 10
-    fig = survey_figure(casts, fixes)
-    check_readable(fig, [_station_label(c) for c in casts])
+    fig = survey_figure(casts, fixes, stations)
+    named = names(stations)
+    check_readable(fig, [_station_label(c, named[c.id]) for c in casts])
     [ax] = [a for a in fig.axes if a.get_label() != "<colorbar>"]
     assert ax.get_xlabel().startswith("metres east of ")
 

@@ -102,3 +102,19 @@ def test_a_section_is_contoured_and_masked_below_the_bed(survey: Survey, tmp_pat
     assert np.abs(above - rgb(BED)).max() > 0.2
     plot_section(survey, column, tmp_path / "written.png")
     assert (tmp_path / "written.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_casts_planned_to_resolve_no_lag_are_not_lag_corrected(tmp_path: Path) -> None:
+    # The simulator's fast pace plans `profile.resolve = []`: readings 1.25 m apart,
+    # from which an inverse correction drew water warmer than any in the lake.
+    for resolve, expected in (([], "none"), (["temperature"], "inverse"), (None, "inverse")):
+        db = tmp_path / f"{resolve}.db"
+        write_journal(db, [CastSpec(seed=1, resolve=resolve), CastSpec(seed=2, resolve=resolve)])
+        with JournalReader(db) as reader:
+            made = profile_survey(reader.casts(), reader.sonde_samples(), reader.events())
+            asked = profile_survey(
+                reader.casts(), reader.sonde_samples(), reader.events(), method="inverse"
+            )
+        assert made.settings.method == expected, resolve
+        assert any("not corrected" in n for n in made.notes) == (expected == "none")
+        assert asked.settings.method == "inverse"  # asked for: done

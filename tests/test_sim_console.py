@@ -307,3 +307,13 @@ def test_the_live_view_survives_a_terminal_that_went_away() -> None:
         console.stop()
         console.print_summary(_summary())
         assert console.output_lost is not None
+
+
+def test_a_probe_left_where_the_winch_could_only_estimate_is_said_as_an_estimate() -> None:
+    stranded = {"stranded_at": 1, "exit_code": 4, "casts_unfinished": 1, "probe_depth_m": 1.272}
+    lines = summary_lines(_summary(**stranded, probe_range_m=(0.566, 1.979)))
+    estimate = "about 1.27 m (an estimate: between 0.57 and 1.98 m)"
+    assert any(line.endswith(f"the probe left {estimate} down") for line in lines), lines
+    assert f"the probe stranded at {estimate}: the daemon sent R-L" in "\n".join(lines)
+    measured = "\n".join(summary_lines(_summary(**stranded)))
+    assert "the probe left 1.27 m down" in measured and "the probe stranded at 1.27 m:" in measured

@@ -15,7 +15,7 @@ from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig, Phase
 from cc_daemon.sim.commands import add_simulate_arguments, options_from_args
 from cc_daemon.sim.console import SimConsole, summary_lines
 from cc_daemon.sim.mission import make_mission
-from cc_daemon.sim.nextsteps import next_steps, profile_steps, program
+from cc_daemon.sim.nextsteps import live_steps, next_steps, profile_steps, program
 from cc_daemon.sim.options import FAST, REALTIME, SimOptions, pace_changes
 from cc_daemon.sim.runner import _headline
 from cc_daemon.sim.session import PROGRESS_EVERY_S, Run
@@ -180,9 +180,23 @@ def test_next_steps_are_runnable_as_printed(tmp_path: Path) -> None:
     assert steps == [
         ".venv/bin/cc-daemon casts --db simulate.db",
         ".venv/bin/cc-daemon export --db simulate.db --format csv -o simulate.csv",
+        ".venv/bin/cc-daemon sonde export --db simulate.db --format csv -o simulate-sonde.csv",
         ".venv/bin/cc-daemon plot --db simulate.db --survey -o simulate-survey.png",
         ".venv/bin/cc-daemon plot --db simulate.db --cast 2 -o simulate-cast-2.png",
+        ".venv/bin/cc-daemon web --db simulate.db   (the field page: open the address it prints)",
         "make export plot   (CSV, GeoJSON, NetCDF and the survey map, beside it)",
+    ]
+    watch = live_steps(tmp_path / "simulate.db", tmp_path / "x.sock", True, argv0=str(
+        venv_program), cwd=tmp_path)  # fmt: skip
+    assert watch == [
+        ".venv/bin/cc-daemon status --db simulate.db --watch",
+        ".venv/bin/cc-daemon web --db simulate.db",
+    ]
+    aside = live_steps(tmp_path / "simulate.db", tmp_path / "run" / "status.sock", False,
+                       argv0=str(venv_program), cwd=tmp_path)  # fmt: skip
+    assert aside == [
+        ".venv/bin/cc-daemon status --socket run/status.sock --watch",
+        ".venv/bin/cc-daemon web --db simulate.db --socket run/status.sock",
     ]
     elsewhere = next_steps(Path("/data/a b.db"), None, argv0=str(venv_program), cwd=tmp_path)
     assert elsewhere[0] == ".venv/bin/cc-daemon casts --db '/data/a b.db'"

@@ -133,7 +133,7 @@ def test_simulator_summary_lines(db: Path) -> None:
     from cc_daemon.sim.sondesummary import sonde_lines
 
     (line,) = sonde_lines(db, 1)  # the journal's one session
-    assert line.startswith("cast 1 sonde: 15 readings, 2 incomplete; surface 0.00 m")
+    assert line.startswith("cast 1 (S1) sonde: 15 readings, 2 incomplete; surface 0.00 m")
     assert "temperature 24.00 degC" in line and "bottom 3.00 m" in line
     assert "ph 8.10," in line  # pH's unit "1" is not printed
 
@@ -166,3 +166,25 @@ def test_value_near_and_distance() -> None:
 
     first, second = along_track_m([cast(1, 40.0), cast(2, 40.001)])
     assert first == 0.0 and second == pytest.approx(111.2, abs=0.1)
+
+
+def test_a_refused_stations_readings_are_not_called_a_profile(tmp_path: Path) -> None:
+    from cc_daemon.sim.sondesummary import sonde_lines
+
+    path = tmp_path / "j.db"
+    journal = Journal(path)
+    journal.open()
+    held = journal.start_cast(  # --winch-fail-home: refused, the probe hung at 0.50 m
+        StartMeasuring(1, -37260579, 404506308, 0, 5900, 97), planned_depth_m=0.0,
+        mode="continuous", plan={},
+    )  # fmt: skip
+    for i in range(3):
+        journal.record_sonde_sample(
+            cast_id=held, phase="stranded", mono_s=100.0 + i, wall_s=1.7e9 + i, duration_s=0.08,
+            status="ok", error=None, line_out_m=0.5, sonde_depth_m=0.5,
+            values={"depth": 0.5, "temperature": 23.9}, missing={}, simulated=True,
+        )  # fmt: skip
+    journal.end_cast(held, outcome="unfinished", reached_depth_m=0.5)
+    journal.close()
+    (line,) = sonde_lines(path, 1)
+    assert line.startswith("cast 1 (S1, refused: the probe held where it stranded) sonde")

@@ -28,9 +28,9 @@ def _run(path: Path, clock: FakeClock, casts: int, *, lat_e7: int, simulated: bo
         simulated=simulated,
     )
     journal.open()
-    for i in range(casts):
-        station = StartMeasuring(i, -37260579 + 1000 * i, lat_e7, 0, 6000, 90)
-        journal.record_fix(Telemetry(i, -37260579 + 1000 * i, lat_e7, 0, 6000, 90))
+    for i in range(casts):  # stations 85 m apart
+        station = StartMeasuring(i, -37260579 + 10000 * i, lat_e7, 0, 6000, 90)
+        journal.record_fix(Telemetry(i, -37260579 + 10000 * i, lat_e7, 0, 6000, 90))
         cast_id = journal.start_cast(station, planned_depth_m=2.0, mode="continuous", plan={})
         journal.record_sample(cast_id, 1.0, "descending")
         journal.end_cast(cast_id, outcome="completed", reached_depth_m=2.0)
@@ -56,11 +56,14 @@ def test_surveys_lists_each_run_with_what_it_holds(
     assert main(["surveys", "--db", str(two_surveys)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split() == [
-        "survey", "start", "(UTC)", "end", "(UTC)", "stations", "measured", "fixes", "data",
+        "survey", "start", "(UTC)", "end", "(UTC)", "stations", "castable", "measured", "fixes",
+        "data",
     ]  # fmt: skip
     first, second = (line.split() for line in lines[1:])
-    assert first[0] == "1" and first[3:6] == ["3", "3", "3"] and first[6:] == ["SIMULATED", "(sim)"]
-    assert second[0] == "3" and second[3:6] == ["2", "2", "2"] and second[6:] == ["real", "(gpio)"]
+    assert first[0] == "1" and first[3:7] == ["3", "3", "3", "3"]
+    assert first[7:] == ["SIMULATED", "(sim)"]
+    assert second[0] == "3" and second[3:7] == ["2", "2", "2", "2"]
+    assert second[7:] == ["real", "(gpio)"]
     assert first[1] == "2024-06-01T08:00Z"
 
 

@@ -394,3 +394,26 @@ async def test_what_pages_ask_on_a_timer_is_read_once_for_all_of_them(
     again = [await client.get(path) for path in ("/api/latest", "/api/surveys")]
     assert [r.status for r in again] == [200, 200]
     assert sorted(calls) == ["latest", "latest", "surveys", "surveys"]
+
+
+async def test_a_shared_latest_answer_gives_each_readings_age_as_of_its_own_answer(
+    client: TestClient[Any, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The newcomer saw `taken 8.7 s ago` for 4.5 s on end: the age was the shared
+    answer's, made once for every page."""
+    import time
+    import types
+
+    from cc_daemon.cli.web import server
+
+    now, later = time.time(), [0.0]  # monotonic still: the answer stays shared
+    monkeypatch.setattr(
+        server,
+        "time",
+        types.SimpleNamespace(monotonic=lambda: 1000.0, time=lambda: now + later[0]),
+    )
+    first = (await (await client.get("/api/latest")).json())["sonde"]
+    later[0] = 3.0
+    again = (await (await client.get("/api/latest")).json())["sonde"]
+    assert again["wall_s"] == first["wall_s"]  # the same reading, the same shared answer
+    assert again["age_s"] == pytest.approx(first["age_s"] + 3.0, abs=0.01)

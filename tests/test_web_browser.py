@@ -1,173 +1,239 @@
-"""The field page in a real browser (Debian's headless Chromium) at a phone's width,
-against `cc-daemon --simulate` and `cc-daemon web` as subprocesses.
-
-One browser session and one simulated survey for every check: each costs seconds."""
+"""The field page in a real browser (Debian's headless Chromium), at a phone's width
+(390 px) and a laptop's (1,280 px), against `cc-daemon --simulate` and `cc-daemon web`
+as subprocesses (`tests.fieldpage`): each part renders in plain words with units; a
+stranded probe's sentence appears and stays when the daemon stops; nothing is wider
+than the screen, no text covers other text, no word breaks across two lines; every
+download is a file its reader opens."""
 
 from __future__ import annotations
 
+import csv
 import json
-import os
-import re
-import subprocess
-import sys
-import urllib.request
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from tests import browserkit, webkit
-from tests.daemonkit import REPO
-from tests.waitkit import DEADLINE_S, until_sync
+from tests.fieldpage import (
+    TEXT_JS,
+    WIDTHS,
+    Day,
+    at_width,
+    fetch,
+    look,
+    ready,
+    run_the_day,
+    settle,
+    web,
+)
 
-# A simulated survey, a stalled one and a browser: slow under a loaded full suite.
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+# Two simulated surveys and a browser: minutes under a loaded full suite.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
-
-def _env(**extra: str) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("CC_DAEMON_")}
-    return {**env, "PYTHONPATH": str(REPO), **extra}
-
-
-def _until(what: str, check: Callable[[], Any]) -> Any:
-    """Poll `check` (a round trip to the browser) every 0.1 s until it is true-ish."""
-    return until_sync(check, what, DEADLINE_S, every=0.1)
-
-
-SIMULATE = [sys.executable, "-m", "cc_daemon", "--simulate", "--stations", "3", "--plain"]
-SUMMARY = "return $('#summary').textContent"
-BANNER = "return $('#banner').hidden ? '' : $('#banner').textContent"
-LIVE_POINTS = "const l = $('#live-chart-line'); return l ? l.points.length : 0"
-SURVEY_ROWS = "return document.querySelectorAll('#surveys tbody tr[data-survey]').length"
-PROFILE_TITLE = "return $('#profile-title').textContent"
-PROFILE_LINES = "return document.querySelectorAll('#profile polyline').length"
+UNITS = {
+    "#summary": [" m", "bit/s", " %", " GB", "° N", "° W", " s ago"],
+    "#casts": [" m", "water ", " UTC"],
+}
 
 
-def _get_json(url: str) -> dict[str, Any]:
-    with urllib.request.urlopen(url, timeout=DEADLINE_S) as answer:
-        doc: dict[str, Any] = json.load(answer)
-    return doc
+def _checks(browser: Any, state: str) -> None:
+    """At each width: the page as a person sees it, and the words and units of `state`."""
+    js = browser.execute_script
+    for width in WIDTHS:
+        at_width(browser, width)
+        ready(browser, state)
+        seen = look(browser)
+        page, zoom = seen["wide"]
+        assert page <= width and zoom == 1, (state, width, seen["wide"])  # no sideways scroll
+        assert seen["overlaps"] == [], (state, width)
+        assert seen["broken"] == [], (state, width)
+        assert seen["spills"] == [], (state, width)
+    text = {where: js(TEXT_JS, where) for where in ("#state", "#summary", "#casts", "#banner")}
+    mode = js(TEXT_JS, "#mode")
+    assert mode == ("DAEMON NOT ANSWERING" if state == "gone" else "SIMULATED: no probe moves")
+    if state != "gone":
+        for where, units in UNITS.items():
+            for unit in units:
+                assert unit in text[where], (state, where, unit, text[where])
+        if "status\nok" in text["#summary"]:  # the sonde's last reading, every value's unit
+            for unit in ("°C", "mg/L", "RFU", " %"):
+                assert unit in text["#summary"].split("Sonde (last reading)")[1], unit
+    # One count: the chosen survey's measured stations are its casts measured.
+    counted = js("return document.querySelector('#surveys button.chosen .measured').textContent")
+    measured = js(
+        "return [...document.querySelectorAll('#casts button')]"
+        ".filter((b) => b.children[2].textContent === 'measured')"
+        ".map((b) => b.children[0].textContent.split(' ')[0])"
+    )
+    assert counted == f"{len(set(measured))} measured", (counted, measured)
+    # The map names the stations as the simulator does; profiles have axes with units.
+    labels = js(
+        "return [...document.querySelectorAll('#map .station-label')].map(t => t.textContent)"
+    )
+    assert any(label.startswith("S1 ") for label in labels), labels
+    titles = js(
+        "return [...document.querySelectorAll('#profiles .axis-title')].map(t => t.textContent)"
+    )
+    assert "depth (m)" in titles and "time (s)" in titles and "temperature (°C)" in titles, titles
+    # The way down and the way up are drawn apart; a stranded probe's readings are held.
+    series = "return document.querySelectorAll('#profiles .series.' + arguments[0]).length"
+    for way in ("held",) if state in ("stranded", "gone") else ("down", "up"):
+        assert js(series, way) >= 1, (state, way)
+    # The day's science: the lake floor under the map, each station's numbers, the
+    # binned profile over the readings, the thermocline marked where there is one.
+    if state in ("idle", "casting"):  # the first survey's: three stations measured
+        # Made again when the journal has grown and the making is due (science.py).
+        settle(browser, "the lake floor on the map", lambda: "Lake floor from " in js(
+            TEXT_JS, "#bed-legend"))  # fmt: skip
+        assert js("return document.querySelectorAll('#map .bed-cell').length") >= 1
+        numbers = js(TEXT_JS, "#numbers")
+        assert "Thermocline (m)" in numbers and "S1 · cast" in numbers, numbers
+        # Bins made from every reading of the cast (the page asks again when they are due).
+        settle(browser, "the binned profile", lambda: js(series, "binned") >= 1)
+        assert js(series, "raw") == 0  # under the bins, the readings are points only
+    # Events are sentences, their details folded away.
+    events = js("return [...document.querySelectorAll('#events > li')].map(li => li.innerText)")
+    assert any(" at S1 started: " in e for e in events), events[:5]
+    assert js("return document.querySelectorAll('#events details:not([open])').length") >= 1
+    if state == "idle":
+        assert "No cast running" in text["#state"] and "The probe is home" in text["#state"]
+    if state == "casting":
+        assert "going down" in text["#state"] and " m planned" in text["#state"]
+        assert js("return document.querySelectorAll('#live-chart .measured-line').length") == 1
+    if state == "stranded":
+        _stranded_said(text["#banner"])
+    if state == "gone":
+        assert "The daemon does not answer" in text["#banner"], text["#banner"]
+        assert "Last known" in text["#banner"], text["#banner"]
+        _stranded_said(text["#banner"])  # the last known state stays on the page
+        assert "as of" in text["#state"] and "stranded" in text["#state"]
 
 
-def _status(url: str) -> dict[str, Any]:
-    doc = _get_json(url + "api/status")
-    return doc if doc["reachable"] else {"counters": {"casts_completed": 0}}
+def _stranded_said(banner: str) -> None:
+    assert "The probe is stranded" in banner, banner
+    assert "What happened: home not reached: line jammed at 0.50 m" in banner, banner
+    assert "Where the probe is: at 0.50 m" in banner, banner
+    assert "What the autopilot is told: R-L" in banner and "instead of R-F" in banner, banner
+    assert "To release:" in banner and "cc-daemon winch home" in banner, banner
 
 
-@pytest.fixture
-def web(tmp_path: Path) -> Iterator[tuple[str, Path, Path]]:
-    """`cc-daemon web` on a free port: (its URL, the socket it asks, the journal)."""
-    sock, db = tmp_path / "status.sock", tmp_path / "sim.db"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "cc_daemon", "web", "--listen", "127.0.0.1:0",
-         "--socket", str(sock), "--db", str(db)],
-        stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path,
-    )  # fmt: skip
-    try:
-        assert proc.stderr is not None
-        url = None
-        for line in proc.stderr:
-            found = re.search(r"(http://127\.0\.0\.1:\d+/)", line)
-            if found:
-                url = found.group(1)
-                break
-        assert url, f"cc-daemon web did not start (exit {proc.poll()})"
-        yield url, sock, db
-    finally:
-        proc.terminate()
-        proc.wait(DEADLINE_S)
-        assert proc.stderr is not None
-        proc.stderr.close()
+def _science_files(browser: Any) -> None:
+    """The science's downloads: each a file its reader opens."""
+    netcdf4 = pytest.importorskip("netCDF4")
+    links = browser.execute_script(
+        "return [...document.querySelectorAll('#science-files a')]"
+        ".map(a => [a.dataset.format, a.href])"
+    )
+    names = [name for name, _ in links]
+    for name in ("bathymetry.nc", "contours.geojson", "profiles.nc", "profiles.csv",
+                 "stations.csv", "stations.geojson"):  # fmt: skip
+        assert name in names, (name, names)
+    for name, link in links:
+        body = fetch(link)
+        if name.endswith(".csv"):
+            lines = [line for line in body.decode().splitlines() if not line.startswith("#")]
+            assert list(csv.DictReader(lines)), name
+        elif name.endswith(".geojson"):
+            assert json.loads(body)["type"] == "FeatureCollection", name
+        elif name.endswith(".nc"):
+            with netcdf4.Dataset("in-memory.nc", memory=body) as nc:
+                assert nc.dimensions, name
+        else:
+            assert body[:4] in (b"II*\x00", b"MM\x00*"), name  # a TIFF
 
 
-def test_the_page_follows_a_simulated_survey_at_a_phones_width(
-    web: tuple[str, Path, Path], tmp_path: Path
-) -> None:
-    url, sock, db = web
-    sims: list[subprocess.Popen[bytes]] = []
+def _downloads(browser: Any) -> None:
+    """Every download of the chosen survey: a file its reader opens, with data in it."""
+    netcdf4 = pytest.importorskip("netCDF4")
+    links = browser.execute_script(
+        "return [...document.querySelectorAll('#downloads a')].map(a => [a.dataset.format, a.href])"
+    )
+    assert [fmt for fmt, _ in links] == ["csv", "sonde.csv", "sonde.nc", "geojson", "nc"]
+    for fmt, link in links:
+        body = fetch(link)
+        if fmt.endswith("csv"):
+            text = body.decode()
+            lines = [line for line in text.splitlines() if not line.startswith("#")]
+            rows = list(csv.DictReader(lines))
+            assert rows, fmt
+            key = "depth_low_m" if fmt == "csv" else "temperature [degC]"
+            assert key in rows[0], (fmt, rows[0].keys())
+        elif fmt == "geojson":
+            doc = json.loads(body)
+            assert doc["type"] == "FeatureCollection" and doc["features"]
+        else:
+            with netcdf4.Dataset("in-memory.nc", memory=body) as nc:
+                assert nc.featureType == "profile" and nc.dimensions
 
-    def simulate(*extra: str) -> subprocess.Popen[bytes]:
-        sims.append(
-            subprocess.Popen(
-                [*SIMULATE, "--db", str(db), *extra],
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                env=_env(CC_DAEMON_STATUS__PATH=str(sock)),
-                cwd=tmp_path,
-            )
+
+def test_the_field_page_through_a_day_at_a_phones_and_a_laptops_width(tmp_path: Path) -> None:
+    def visit(day: Day, state: str, browser: Any) -> None:
+        js = browser.execute_script
+        if state == "casting-live":
+            # The live chart grows while the cast runs, without a reload.
+            def drawn() -> tuple[Any, int]:
+                count = js("const l = document.querySelector('#live-chart-line');"
+                           " return l ? l.points.length : 0")  # fmt: skip
+                return js("return document.querySelector('#live-caption').textContent"), count
+
+            first = settle(browser, "a cast on the live chart", lambda: drawn()[1] and drawn())
+            settle(browser, "the chart advancing", lambda: drawn() != first)
+            return
+        if state == "stranded-live":
+            settle(browser, "the stranded sentence", lambda: "The probe is stranded" in js(
+                TEXT_JS, "#banner"))  # fmt: skip
+            _stranded_said(js(TEXT_JS, "#banner"))
+            # Opened on the first survey, the page followed the second and its station.
+            settle(browser, "the new survey's map", lambda: "survey 2" in js(TEXT_JS, "#map-title"))
+            settle(browser, "the station named", lambda: " at S1: " in js(TEXT_JS, "#state"))
+            return
+        if state == "gone-live":  # the real daemon stopped with the probe down
+            settle(browser, "the daemon gone", lambda: "does not answer" in js(TEXT_JS, "#banner"))
+            _stranded_said(js(TEXT_JS, "#banner"))
+            return
+        _checks(browser, state)
+        if state == "idle":
+            _downloads(browser)
+            _science_files(browser)
+
+    run_the_day(tmp_path, visit)
+
+
+def test_any_fault_key_raises_the_banner_and_unknown_sections_are_shown(tmp_path: Path) -> None:
+    webkit.make_journal(tmp_path / "sim.db")
+    with web(tmp_path) as (url, sock, _):
+        doc = webkit.status(
+            winch={"fault": "stalled at 2.5 m: probe stranded"},
+            counters={"faults_total": 3},  # a count of faults past: no banner
         )
-        return sims[-1]
-
-    def stop(sim: subprocess.Popen[bytes]) -> None:
-        sim.terminate()  # the daemon brings the probe home and exits
-        sim.wait(DEADLINE_S)
-
-    sim = simulate()
-    try:
-        with browserkit.chromium() as browser:
+        with browserkit.chromium() as browser, browserkit.status_socket(sock, doc):
             browser.get(url)
             js = browser.execute_script
-            # Against the running daemon: it says, in words, that no probe moves.
-            _until("SIMULATED shown", lambda: "SIMULATED" in js("return $('#mode').textContent"))
-            # The live chart grows while a cast runs, without a reload.
-            first = _until("a cast on the live chart", lambda: js(LIVE_POINTS))
-            _until("the chart advancing", lambda: js(LIVE_POINTS) >= first + 2)
-            assert js("return $('#live-caption').textContent").startswith("Cast ")
-            _until("a cast completed", lambda: _status(url)["counters"]["casts_completed"])
-            # The sonde's last reading, from the journal (every 5 s).
-            _until("the sonde's card", lambda: "Sonde (last reading)" in js(SUMMARY))
-            stop(sim)
-            # The daemon gone: said at the top, not hidden.
-            _until("the unreachable banner", lambda: "does not answer" in js(BANNER))
-            # A fault injected in the simulation (the winch stalls): the banner, while
-            # it lasts (about 2 s per stalled cast), on a second survey in the journal.
-            stall = simulate("--winch-stall")
-            _until("the stall's banner", lambda: "winch.fault: stall at" in js(BANNER))
-            stop(stall)
-            # Any fault key in the status document, and sections no version of the
-            # page knows, are shown too.
-            doc = webkit.status(
-                winch={"fault": "stalled at 2.5 m: probe stranded"},
-                counters={"faults_total": 3},  # a count of faults past: no banner
+            settle(
+                browser, "the fault banner", lambda: "stalled at 2.5 m" in js(TEXT_JS, "#banner")
             )
-            with browserkit.status_socket(sock, doc):
-                _until("the fault banner", lambda: "winch.fault: stalled at 2.5 m" in js(BANNER))
-                assert "tide_gauge" in js("return $('#sections').textContent")
-                assert "faults_total" not in js(BANNER)
-                # Today: the first survey's last cast, its profile drawn from the journal.
-                browser.get(url)
-                _until("the surveys listed", lambda: js(SURVEY_ROWS) == 2)
-                js("document.querySelector('#surveys tr[data-survey=\"1\"]').click()")
-                casts = _get_json(url + "api/surveys/1/casts")["casts"]
-                cast = [c["id"] for c in casts if c["outcome"] == "completed"][-1]
-                _until(
-                    "the profile drawn",
-                    lambda: (
-                        js(PROFILE_TITLE).startswith(f"Profile of cast {cast}:")
-                        and js(PROFILE_LINES) >= 3
-                    ),
-                )
-                assert js("return document.querySelectorAll('#map circle.station').length") >= 1
-                # A phone's width: nothing wider than the screen, no text over text.
-                assert js("return document.documentElement.scrollWidth") <= 390
-                assert js(browserkit.OVERLAPS_JS) == []
-                browser.save_screenshot(str(tmp_path / "phone.png"))
-                # ...and the check sees text laid over text when there is some.
-                js(
-                    "const s = document.createElement('span'); s.textContent = 'OVER';"
-                    "s.style = 'position:absolute;top:8px;left:14px'; document.body.append(s)"
-                )
-                assert js(browserkit.OVERLAPS_JS)
-                links = js("return [...document.querySelectorAll('#downloads a')].map(a => a.href)")
-        assert [link.rsplit(".", 1)[1] for link in links] == ["csv", "geojson", "nc"]
-        for link in links[:2]:
-            with urllib.request.urlopen(link, timeout=DEADLINE_S) as answer:
-                assert answer.status == 200 and len(answer.read()) > 100
-        assert (tmp_path / "phone.png").stat().st_size > 10_000
-    finally:
-        for sim in sims:
-            if sim.poll() is None:
-                sim.kill()
-                sim.wait(10)
+            banner = js(TEXT_JS, "#banner")
+            assert "The winch reports a fault" in banner and "faults total" not in banner
+            assert "tide_gauge" in js("return document.querySelector('#sections').textContent")
+            # A key no version of the page knows, naming a fault, raises it too.
+            doc["tide_gauge"] = {"fault": "float stuck"}
+            settle(browser, "the new key", lambda: "float stuck" in js(TEXT_JS, "#banner"))
+            # ...and the check sees text laid over text when there is some.
+            js(
+                "const s = document.createElement('span'); s.textContent = 'OVER';"
+                "s.style = 'position:absolute;top:8px;left:14px'; document.body.append(s)"
+            )
+            assert js(browserkit.OVERLAPS_JS)
+            # ...and a word broken across two lines.
+            js(
+                "const p = document.createElement('p'); p.textContent = 'unbreakable'.repeat(9);"
+                "p.style = 'width:5em;overflow-wrap:anywhere'; document.body.append(p)"
+            )
+            assert look(browser)["broken"]
+            # ...and text running out of its card.
+            js(
+                "const s = document.createElement('span'); s.className = 'chunk';"
+                "s.textContent = 'spilt '.repeat(60); document.querySelector('.card dd').append(s)"
+            )
+            assert look(browser)["spills"]

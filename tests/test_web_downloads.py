@@ -22,10 +22,10 @@ import pytest
 import structlog
 from aiohttp.test_utils import TestClient
 
+from cc_daemon.cli.exportfiles import samples_csv
 from cc_daemon.cli.web.policy import Limits
 from cc_daemon.cli.web.server import Sources
-from cc_daemon.export import csv, geojson
-from cc_daemon.export.provenance import of_casts
+from cc_daemon.export import geojson
 from cc_daemon.store import CastRecord, FixRecord, JournalReader
 from tests import webkit
 from tests.webkit import WebProcess
@@ -120,7 +120,7 @@ async def test_a_long_surveys_geojson_is_streamed_in_bounded_memory(long_track: 
 @pytest.mark.timeout(240)
 async def test_a_long_surveys_csv_is_streamed_in_bounded_memory(many_samples: Path) -> None:
     def write(reader: JournalReader, casts: list[CastRecord], out: io.StringIO) -> None:
-        csv.write_samples(reader.samples(), out, provenance=of_casts(casts).comment())
+        samples_csv(reader, casts, reader.samples(), out)  # as `cc-daemon export` writes it
 
     body = exported(many_samples, write)
     assert len(body) > 7_000_000

@@ -19,17 +19,19 @@ import argparse
 import contextlib
 import os
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TextIO
 
 from cc_daemon.cli.surveys import add_survey_option, choose_survey, run_surveys, survey_choice
 from cc_daemon.config import load_settings
+from cc_daemon.config.statuspaths import SIMULATOR_JOURNAL
 from cc_daemon.core.cast.bottom import MAX_CONFIDENCE_PCT, MAX_SOUNDING_MM
 from cc_daemon.core.errors import ConfigError
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import JournalReader, StoreError, default_store_path
 from cc_daemon.store.records import CastRecord, iso_utc, parse_time
+from cc_daemon.store.stations import names
 from cc_daemon.store.surveys import LATEST
 
 Handler = Callable[[argparse.Namespace], int]
@@ -59,7 +61,6 @@ def _cast_id(text: str) -> int:
 
 
 SERVICE_JOURNAL = Path("/var/lib/cc-daemon/cc-daemon.db")  # StateDirectory= of the unit
-SIMULATOR_JOURNAL = Path("simulate.db")  # `cc-daemon --simulate`'s default --db
 
 
 def journal_path(args: argparse.Namespace) -> Path:
@@ -253,11 +254,13 @@ def _number(value: float | None, width: int, digits: int) -> str:
     return f"{'-':>{width}}" if value is None else f"{value:>{width}.{digits}f}"
 
 
-def format_casts(casts: Sequence[CastRecord]) -> str:
-    """The `casts` table; a `*` after a time marks a clock that was not synchronised."""
+def format_casts(casts: Sequence[CastRecord], stations: Mapping[int, str] | None = None) -> str:
+    """The `casts` table; a `*` after a time marks a clock that was not synchronised.
+    `stations`: each cast's station name (`store.stations`), by cast id."""
+    named = stations or {}
     lines = [
-        f"{'id':>5}  {'start (UTC)':<21} {'lat':>11} {'lon':>12} {'water m':>8} {'conf %':>6}"
-        f" {'reached m':>9} {'samples':>7}  outcome"
+        f"{'id':>5}  {'station':<7}  {'start (UTC)':<21} {'lat':>11} {'lon':>12} {'water m':>8}"
+        f" {'conf %':>6} {'reached m':>9} {'samples':>7}  outcome"
     ]
     for c in casts:
         start = iso_utc(c.start_wall_s)[:19] + "Z" + (" " if c.start_clock_synced else "*")
@@ -272,7 +275,8 @@ def format_casts(casts: Sequence[CastRecord]) -> str:
         )
         water = None if impossible else c.water_depth_m
         lines.append(
-            f"{c.id:>5}  {start:<21} {c.lat_deg:>11.7f} {c.lon_deg:>12.7f}"
+            f"{c.id:>5}  {named.get(c.id, '-'):<7}  {start:<21} {c.lat_deg:>11.7f}"
+            f" {c.lon_deg:>12.7f}"
             f" {_number(water, 8, 2)} {c.sonar_confidence_pct:>6}"
             f" {_number(c.reached_depth_m, 9, 2)} {c.samples:>7}  {outcome}"
         )
@@ -290,10 +294,11 @@ def _casts(args: argparse.Namespace) -> int:
     with JournalReader(db) as reader:
         choose_survey(reader, args.survey, "casts")
         casts = reader.casts(since=args.since)
+        stations = names(reader.stations())
     if not casts:
         print(f"no casts in {db}", file=sys.stderr)
         return 0
-    sys.stdout.write(format_casts(casts))
+    sys.stdout.write(format_casts(casts, stations))
     return 0
 
 
@@ -344,13 +349,13 @@ def _export(args: argparse.Namespace) -> int:
             else:
                 with _output(args.output, newline="") as out:
                     if what == "samples":
-                        from cc_daemon.export.provenance import of_casts
+                        from cc_daemon.cli.exportfiles import samples_csv
 
-                        made_by = of_casts(reader.casts(cast_id=args.cast, since=args.since))
-                        count = csv.write_samples(
+                        count = samples_csv(
+                            reader,
+                            reader.casts(cast_id=args.cast, since=args.since),
                             reader.samples(cast_id=args.cast, since=args.since),
                             out,
-                            provenance=made_by.comment(),
                         )
                     elif what == "telemetry":
                         count = csv.write_fixes(
@@ -386,12 +391,13 @@ def _plot(args: argparse.Namespace) -> int:
         if args.survey is not None:
             casts = reader.casts(since=args.since)
             fixes = reader.fixes(since=args.since)
-            plot.plot_survey(casts, fixes, args.output)
+            plot.plot_survey(casts, fixes, args.output, reader.stations())
             noun = f"the survey ({len(fixes)} fixes, {len(casts)} casts)"
         else:
             _check_cast(reader, args.cast, db)
             cast = reader.casts(cast_id=args.cast)[0]
-            plot.plot_cast(cast, reader.samples(cast_id=args.cast), args.output)
+            samples = reader.samples(cast_id=args.cast)
+            plot.plot_cast(cast, samples, args.output, reader.events())
             noun = f"cast {args.cast}"
     print(f"plotted {noun} to {args.output}", file=sys.stderr)
     return 0

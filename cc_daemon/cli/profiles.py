@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -88,8 +89,9 @@ def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.add_argument(
         "--lag-correction",
         choices=("inverse", "shift", "none"),
-        default="inverse",
-        help="how sensor lags are corrected (default: inverse; docs/profiles.md)",
+        default=None,
+        help="how sensor lags are corrected (default: inverse, or none for casts planned to"
+        " resolve no lag; docs/profiles.md)",
     )
     p.add_argument("--no-plots", action="store_true", help="write the tables only")
     p.set_defaults(handler=run)
@@ -140,7 +142,7 @@ def _run(args: argparse.Namespace) -> int:
     for note in survey.notes:
         _say(f"note: {note}")
     args.output.mkdir(parents=True, exist_ok=True)
-    problems = _tables(survey, args.output)
+    problems = write_tables(survey, args.output)
     if lake is None:
         _say(SCHMIDT_MISSING.format(why=why))
     elif lake.covered_fraction < 1.0:
@@ -171,26 +173,28 @@ def _survey_lake(
     return lake, why
 
 
-def _tables(survey: Survey, out: Path) -> int:
+def write_tables(survey: Survey, out: Path, say: Callable[[str], None] = _say) -> int:
+    """The profiles' tables into `out`: profiles.csv, stations.csv and .geojson, and
+    profiles.nc; each said in a line. 1 when netCDF4 is missing (the rest written)."""
     from cc_daemon.export.profiles import tables
 
     bins = len(survey.casts[0].processed.down.depth_m)
     with (out / "profiles.csv").open("w", encoding="utf-8", newline="") as f:
         rows = tables.write_profiles_csv(survey, f)
-    _say(f"wrote {out / 'profiles.csv'}: {rows} rows (cast, way, bin)")
+    say(f"wrote {out / 'profiles.csv'}: {rows} rows (cast, way, bin)")
     with (out / "stations.csv").open("w", encoding="utf-8", newline="") as f:
         count = tables.write_stations_csv(survey, f)
     with (out / "stations.geojson").open("w", encoding="utf-8") as f:
         tables.write_stations_geojson(survey, f)
-    _say(f"wrote {out / 'stations.csv'} and {out / 'stations.geojson'}: {count} stations")
+    say(f"wrote {out / 'stations.csv'} and {out / 'stations.geojson'}: {count} stations")
     try:
         from cc_daemon.export.profiles import netcdf
 
         written = netcdf.write(survey, out / "profiles.nc")
     except OptionalDependencyError as exc:
-        _say(f"cc-daemon profiles: profiles.nc not written: {exc}")
+        say(f"cc-daemon profiles: profiles.nc not written: {exc}")
         return 1
-    _say(
+    say(
         f"wrote {out / 'profiles.nc'}: {written} profiles ({len(survey.casts)} casts, down and "
         f"up) on {bins} bins of {survey.settings.bin_m:g} m"
     )

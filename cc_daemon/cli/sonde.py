@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TextIO
 
+from cc_daemon.cli import exportfiles
 from cc_daemon.cli.data import journal_path
 from cc_daemon.cli.surveys import add_survey_option, choose_survey, survey_choice
 from cc_daemon.export import OptionalDependencyError
@@ -115,6 +116,8 @@ def _run(args: argparse.Namespace) -> int:
         casts = reader.casts(cast_id=args.cast)
         if args.cast is not None and not casts:
             raise StoreError(f"no cast {args.cast} in {db}")
+        if args.sonde_action == "export" and args.format != "geojson":
+            return _export_file(reader, args)
         samples = reader.sonde_samples(cast_id=args.cast)
         columns = sonde.parameter_map(reader.events(), samples)
     if args.sonde_action == "plot":
@@ -133,18 +136,21 @@ def _run(args: argparse.Namespace) -> int:
             noun = f"cast {args.cast}'s profiles"
         print(f"plotted {noun} to {args.output}", file=sys.stderr)
         return 0
-    if args.format == "netcdf":
-        from cc_daemon.export import sonde_netcdf
+    with _output(args.output) as out:
+        count = sonde.write_geojson(casts, samples, columns, out)
+    if args.output is not None:
+        print(f"wrote {count} stations to {args.output}", file=sys.stderr)
+    return 0
 
-        count = sonde_netcdf.write(casts, samples, columns, args.output)
-        noun = f"{count} readings in {len(casts)} profiles"
-    elif args.format == "geojson":
-        with _output(args.output) as out:
-            count = sonde.write_geojson(casts, samples, columns, out)
-        noun = f"{count} stations"
+
+def _export_file(reader: JournalReader, args: argparse.Namespace) -> int:
+    """CSV or NetCDF: the files the field page's downloads are (`cli.exportfiles`)."""
+    if args.format == "netcdf":
+        count, profiles = exportfiles.sonde_netcdf(reader, args.cast, args.output)
+        noun = f"{count} readings in {profiles} profiles"
     else:
         with _output(args.output) as out:
-            count = sonde.write_csv(samples, columns, casts, out)
+            count = exportfiles.sonde_csv(reader, args.cast, out)
         noun = f"{count} readings"
     if args.output is not None:
         print(f"wrote {noun} to {args.output}", file=sys.stderr)

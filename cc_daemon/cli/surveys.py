@@ -59,7 +59,7 @@ def _span(s: SurveyRecord) -> str:
 def format_surveys(surveys: Sequence[SurveyRecord]) -> str:
     lines = [
         f"{'survey':>6}  {'start (UTC)':<17}  {'end (UTC)':<17}  {'stations':>8}"
-        f"  {'measured':>8}  {'fixes':>7}  data"
+        f"  {'castable':>8}  {'measured':>8}  {'fixes':>7}  data"
     ]
     for s in surveys:
         if s.simulated is None:
@@ -68,7 +68,8 @@ def format_surveys(surveys: Sequence[SurveyRecord]) -> str:
             kind = f"SIMULATED ({s.winch_backend})" if s.simulated else f"real ({s.winch_backend})"
         lines.append(
             f"{s.id:>6}  {iso_utc(s.start_wall_s)[:16] + 'Z':<17}"
-            f"  {iso_utc(s.end_wall_s)[:16] + 'Z':<17}  {s.stations:>8}  {s.measured:>8}"
+            f"  {iso_utc(s.end_wall_s)[:16] + 'Z':<17}  {s.stations:>8}  {s.castable:>8}"
+            f"  {s.measured:>8}"
             f"  {s.fixes:>7}  {kind}"
         )
     return "\n".join(lines) + "\n"

@@ -42,6 +42,7 @@ SOCKET_NAME = "status.sock"
 SERVICE_SOCKET = Path("/run/cc-daemon") / SOCKET_NAME
 SERVICE_USER = "cc-daemon"  # the installed unit's User= (systemd/cc-daemon.sysusers)
 DEFAULT_JOURNAL = Path("cc-daemon.db")  # the journal's own default outside systemd
+SIMULATOR_JOURNAL = Path("simulate.db")  # `cc-daemon --simulate`'s default --db
 _SUN_PATH_MAX = 107  # sockaddr_un.sun_path is 108 bytes, NUL included
 _NAME_MAX = 40  # of a journal's name, in a private socket's name
 

@@ -45,3 +45,7 @@ class DaemonStatus:
     lost_start: str | None = None  # set while the autopilot may wait on an unread M
     port_open_attempts: int = 0  # failed attempts to open the port since it was last open
     fault_reports: int = 0  # R-L sent for the running cast (stranded, refused)
+    # How the autopilot's two timestamp bytes are read (`cast.timestamps`): the
+    # order assumed until "auto" decides, then the one it settled on.
+    timestamp_order: str = "big"
+    timestamp_order_settled: bool = False

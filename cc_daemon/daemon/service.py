@@ -65,7 +65,7 @@ from cc_daemon.daemon.housekeeping import Housekeeping
 from cc_daemon.daemon.line_watch import LineWatch, watch_line
 from cc_daemon.daemon.preflight import make_journal
 from cc_daemon.daemon.restart import note_interrupted
-from cc_daemon.daemon.simgate import simulation_warning
+from cc_daemon.daemon.simgate import backend_name, is_simulated, simulation_warning
 from cc_daemon.daemon.simulators import NO_SIMULATORS, Simulators
 from cc_daemon.daemon.sonde import SondeDuty, make_sonde
 from cc_daemon.daemon.systemd import SystemdNotifier
@@ -361,7 +361,9 @@ class Daemon(CastRunner):
             snapshot=self.snapshot(),
             port=self.link.port,
             baudrate=self.settings.serial.baudrate,
-            winch_backend=self.settings.winch.backend,
+            # As the journal records it: "gpio-mock" is the GPIO winch's code on mock pins.
+            winch_backend=backend_name(self.settings),
+            simulated=is_simulated(self.settings),
             journal_health=journal.health if journal is not None else None,
             monotonic=now,
             wall=self._clock.wall(),
@@ -394,6 +396,8 @@ class Daemon(CastRunner):
             jog=str(self._line.jog.stick) if self._line.jog.stick else None,
             lost_start=self._line.lost_start_text(),
             port_open_attempts=self.link.waiting.attempts,
+            timestamp_order=self._line.order.order,
+            timestamp_order_settled=self._line.order.decided,
         )
 
     @property

@@ -22,8 +22,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from cc_daemon import __version__
+from cc_daemon.core.cast.timestamps import swap_bytes
 from cc_daemon.core.protocol import as_dict
 from cc_daemon.core.status import DaemonStatus
+from cc_daemon.core.winch.status import WinchStatus
 from cc_daemon.ground.clocksync import ClockSync, clock_sync
 from cc_daemon.store import JournalHealth
 
@@ -40,6 +42,7 @@ class StatusInputs:
     monotonic: float  # the daemon's clock, for ages
     wall: float
     uptime_s: float
+    simulated: bool = False  # no real motor moves (a simulated winch, or mock pins)
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,6 +77,7 @@ def _daemon(src: Source) -> dict[str, Any]:
         "host": socket.gethostname(),
         "uptime_s": round(src.uptime_s, 1),
         "wall_time": round(src.wall, 3),
+        "simulated": src.inputs.simulated,
     }
 
 
@@ -92,7 +96,26 @@ def _fix(src: Source) -> dict[str, Any] | None:
     fix = src.snapshot.last_fix
     if fix is None:
         return None
-    return {**as_dict(fix.message), "age_s": round(src.monotonic - fix.monotonic, 1)}
+    fields = as_dict(fix.message)
+    # The autopilot's time in its real value: its two bytes read in the order the
+    # session settled on (the deployed firmware writes them little-endian), as the
+    # journal stores it, never the raw big-endian reading.
+    order = src.snapshot.timestamp_order
+    if order == "little":
+        fields["timestamp_s"] = swap_bytes(fields["timestamp_s"])
+    return {
+        **fields,
+        "timestamp_order": order,
+        "timestamp_order_settled": src.snapshot.timestamp_order_settled,
+        "age_s": round(src.monotonic - fix.monotonic, 1),
+    }
+
+
+def _range(w: WinchStatus | None) -> dict[str, float | None]:
+    """Where the probe may be when its depth is an estimate (None: measured)."""
+    if w is None or w.depth_low_m is None or w.depth_high_m is None:
+        return {"depth_low_m": None, "depth_high_m": None}
+    return {"depth_low_m": round(w.depth_low_m, 3), "depth_high_m": round(w.depth_high_m, 3)}
 
 
 def _cast(src: Source) -> dict[str, Any]:
@@ -108,6 +131,7 @@ def _cast(src: Source) -> dict[str, Any]:
                 "depth_m": round(s.probe_depth_m, 3),
                 "fault": s.winch_fault,
                 "r_l_sent": s.fault_reports,
+                **_range(s.winch),
             }
             if s.phase == "stranded"
             else None
@@ -124,6 +148,7 @@ def _winch(src: Source) -> dict[str, Any]:
         "at_home": w.at_home if w else None,
         "fault": (w.fault if w else None) or src.snapshot.winch_fault,
         "sensor_fault": w.sensor_fault if w else None,
+        **_range(w),
     }
 
 

@@ -28,6 +28,7 @@ from cc_daemon.science.hypsography import Hypsography
 from cc_daemon.store import JournalReader
 from cc_daemon.store.records import CastRecord, FixRecord
 from cc_daemon.store.sonar import SonarReadingRecord
+from cc_daemon.store.stations import names
 from cc_daemon.store.surveys import SurveyRecord
 
 
@@ -52,6 +53,7 @@ class SurveyMap:
     fixes: list[FixRecord]
     options: MapOptions
     source_file: Path
+    station_names: dict[int, str] = field(default_factory=dict)  # cast id: S1...
 
     @property
     def simulated(self) -> bool:
@@ -103,7 +105,8 @@ def make_map(reader: JournalReader, survey: SurveyRecord, options: MapOptions) -
         method=options.method,
         hypsography_interval_m=options.interval_m,
     )
-    return SurveyMap(survey, found, bed, casts, fixes, options, reader.path)
+    named = names(reader.stations())
+    return SurveyMap(survey, found, bed, casts, fixes, options, reader.path, named)
 
 
 def survey_hypsography(
@@ -123,6 +126,13 @@ def survey_hypsography(
             made = make_map(reader, chosen, options or MapOptions())
     except (StoreError, ValueError) as exc:
         return None, str(exc)
+    return trusted_hypsography(made)
+
+
+def trusted_hypsography(made: SurveyMap) -> tuple[Hypsography | None, str]:
+    """The map's hypsography, or (None, why) when no cell was mapped or the map is a
+    sketch whose accuracy could not be estimated (Schmidt stability would overstate)."""
+    survey = made.survey.id
     if made.bed.hypsography is None:
         return None, f"survey {survey}: no cell of the grid was mapped"
     if math.isnan(made.bed.cv.rmse_m):

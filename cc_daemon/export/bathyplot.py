@@ -100,7 +100,8 @@ def map_figure(survey_map: SurveyMap, found: list[Contour]) -> Any:
                 fontsize=40, color="crimson", alpha=0.25, rotation=20, zorder=5)  # fmt: skip
     if survey_map.casts:
         place_labels(fig, ax, list(zip(px, py, strict=True)),
-                     [f"#{c.id}" for c in survey_map.casts], fontsize="x-small")  # fmt: skip
+                     [survey_map.station_names.get(c.id, f"cast {c.id}") for c in survey_map.casts],
+                     fontsize="x-small")  # fmt: skip
     return fig
 
 

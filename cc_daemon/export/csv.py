@@ -22,18 +22,22 @@ from __future__ import annotations
 import csv
 import json
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import Any, Protocol, TextIO
 
+from cc_daemon.export.estimates import Estimate, for_samples
 from cc_daemon.store.records import EventRecord, FixRecord, SampleRecord, iso_utc
 from cc_daemon.store.sonar import SonarReadingRecord
 
 SAMPLE_COLUMNS = (
     "cast_id",
+    "station",
     "time_utc",
     "lat",
     "lon",
     "depth_m",
+    "depth_low_m",
+    "depth_high_m",
     "phase",
     "clock_synced",
     "monotonic_s",
@@ -97,23 +101,38 @@ def _deg(value: float | None) -> str:
 
 
 def write_samples(
-    samples: Iterable[SampleRecord], out: TextIO, *, provenance: str | None = None
+    samples: Iterable[SampleRecord],
+    out: TextIO,
+    *,
+    provenance: str | None = None,
+    estimates: Mapping[int, Estimate] | None = None,
+    stations: Mapping[int, str] | None = None,
 ) -> int:
     """One row per depth sample; returns the number of rows written. `provenance`
-    (the winch and whether it was simulated) goes first, as a `#` comment line."""
+    (the winch and whether it was simulated) goes first, as a `#` comment line.
+
+    `depth_low_m` and `depth_high_m` are empty for a measured depth; for an
+    estimate (`export.estimates`: the count was in doubt) they give the range the
+    probe was in, and `depth_m` is the best estimate. `station` is the cast's
+    station as `store.stations` names it (S1, S2...)."""
     if provenance is not None:
         out.write(comment(provenance) + "\r\n")
     rows = writer(out)
     rows.writerow(SAMPLE_COLUMNS)
     count = 0
-    for s in samples:
+    names = stations or {}
+    for s, doubt in for_samples(samples, estimates or {}):
+        low, high = ("", "") if doubt is None else (f"{doubt[0]:.3f}", f"{doubt[1]:.3f}")
         rows.writerow(
             (
                 s.cast_id,
+                names.get(s.cast_id, ""),
                 iso_utc(s.wall_s),
                 _deg(s.lat_deg),
                 _deg(s.lon_deg),
                 f"{s.depth_m:.3f}",
+                low,
+                high,
                 s.phase,
                 int(s.clock_synced),
                 f"{s.mono_s:.3f}",

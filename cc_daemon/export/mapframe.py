@@ -23,6 +23,7 @@ EARTH_RADIUS_M = 6_371_008.8  # the mean radius (IUGG): metres per radian
 # Where a label may sit around its point, in points, tried in this order.
 _OFFSETS = [(6, 4), (6, -12), (-6, 4), (-6, -12), (0, 10), (0, -16), (12, -4), (-12, -4)]
 _FARTHER = [(dx * 2, dy * 2) for dx, dy in _OFFSETS]
+_MARKER_PT = 5.0  # half a station marker's width (s=70 points squared), in points
 
 
 LABEL_CHARS = 80  # the shipped sonde map's longest name is 43: "phycocyanin (blue-green ...)"
@@ -91,45 +92,67 @@ def metric_axes(ax: Any, frame: LocalFrame) -> None:
 
 
 def place_labels(
-    fig: Any, ax: Any, points: Sequence[tuple[float, float]], texts: Sequence[str], **style: Any
+    fig: Any,
+    ax: Any,
+    points: Sequence[tuple[float, float]],
+    texts: Sequence[str],
+    *,
+    markers: bool = False,
+    **style: Any,
 ) -> list[Any]:
     """Annotate each point, choosing for each label the first place around its point
-    that overlaps nothing already drawn (labels, ticks, titles) and stays inside the
-    axes; the axes grow to fit the labels if no place is free."""
+    that overlaps nothing already drawn (labels, ticks, titles, and with `markers`
+    the points' own markers) and stays inside the axes; where no place is free, the
+    one that overlaps least. The axes grow to fit the labels if need be."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.transforms import Bbox
 
     renderer = FigureCanvasAgg(fig).get_renderer()  # type: ignore[no-untyped-call]
     fig.draw(renderer)  # lays out the ticks and titles the labels must avoid
     taken = [t.get_window_extent(renderer) for t in fixed_texts(fig) if t.get_text()]
+    if markers:  # a station's marker is as much to be seen as a label
+        half = _MARKER_PT * fig.dpi / 72
+        for x, y in points:
+            px, py = ax.transData.transform((x, y))
+            taken.append(Bbox.from_extents(px - half, py - half, px + half, py + half))
     placed = []
+    inside = ax.get_window_extent(renderer)
+
+    def put(text: str, x: float, y: float, dx: int, dy: int) -> tuple[Any, float | None]:
+        """The label at (dx, dy) points from its point, and how much it covers (None:
+        not inside the axes)."""
+        # Left of the point the text ends there; above or below it is centred.
+        align = "left" if dx > 0 else "right" if dx < 0 else "center"
+        label = ax.annotate(
+            text, (x, y), xytext=(dx, dy), textcoords="offset points", ha=align, zorder=4,
+            **style,
+        )  # fmt: skip
+        box = label.get_window_extent(renderer)
+        if not (inside.contains(box.x0, box.y0) and inside.contains(box.x1, box.y1)):
+            return label, None
+        return label, sum(_overlap(box, other) for other in taken)
+
     for (x, y), text in zip(points, texts, strict=True):
-        label = None
+        best: tuple[float, int, int] | None = None  # the least covering place, if none is free
         for dx, dy in _OFFSETS + _FARTHER:
-            if label is not None:
-                label.remove()
-            # Left of the point the text ends there; above or below it is centred.
-            align = "left" if dx > 0 else "right" if dx < 0 else "center"
-            label = ax.annotate(
-                text,
-                (x, y),
-                xytext=(dx, dy),
-                textcoords="offset points",
-                ha=align,
-                zorder=4,
-                **style,
-            )
-            box = label.get_window_extent(renderer)
-            inside = ax.get_window_extent(renderer)
-            if (
-                inside.contains(box.x0, box.y0)
-                and inside.contains(box.x1, box.y1)
-                and not any(box.overlaps(other) for other in taken)
-            ):
+            label, covered = put(text, x, y, dx, dy)
+            if covered == 0:
                 break
-        assert label is not None
+            if covered is not None and (best is None or covered < best[0]):
+                best = (covered, dx, dy)
+            label.remove()
+        else:
+            label, _ = put(text, x, y, *(best[1:] if best else _FARTHER[-1]))
         taken.append(label.get_window_extent(renderer))
         placed.append(label)
     return placed
+
+
+def _overlap(a: Any, b: Any) -> float:
+    """The area two boxes share, in square pixels."""
+    width = min(a.x1, b.x1) - max(a.x0, b.x0)
+    height = min(a.y1, b.y1) - max(a.y0, b.y0)
+    return float(max(width, 0.0) * max(height, 0.0))
 
 
 def fixed_texts(fig: Any) -> list[Any]:

@@ -31,6 +31,7 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
+from cc_daemon.core.cast.timestamps import swap_bytes
 from cc_daemon.core.protocol import CorruptFrame, Message, as_dict
 from cc_daemon.sim.autopilot import Violation
 from cc_daemon.sim.mission import Mission
@@ -44,11 +45,17 @@ _RECENT_EVENTS = 6
 _BAR_WIDTH = 44
 
 
-def describe_frame(message: Message) -> str:
-    """One short line for a frame: `P-T t=12 40.4506308 N -3.7260579 E sonar 4.620 m 97 %`."""
+def describe_frame(message: Message, order: str = "big") -> str:
+    """One short line for a frame: `P-T t=12 40.4506308 N -3.7260579 E sonar 4.620 m 97 %`.
+
+    `order`: how the autopilot's two timestamp bytes are read, as the daemon settled
+    it (`core.cast.timestamps`); the codec reads them big-endian, as the manual says,
+    and the CC's own frames are big-endian whatever the autopilot does."""
     fields = as_dict(message)
     name = fields.pop("frame")
     stamp = fields.pop("timestamp_s")
+    if order == "little" and name.startswith("P-"):
+        stamp = swap_bytes(stamp)
     if "lat_e7" in fields:
         sonar_m = fields["sonar_distance_mm"] / 1000
         return (
@@ -152,6 +159,8 @@ class Summary:
     notes: list[str] = field(default_factory=list)
     daemon_exit: int | None = None  # None: it did not run here (or did not finish)
     probe_depth_m: float | None = None  # where the probe ended up, when known
+    # When that depth is the winch's estimate (its count not trusted): the range it is in.
+    probe_range_m: tuple[float, float] | None = None
     remote: bool = False  # the daemon is elsewhere: we know only what it said on the link
     casts_unfinished: int | None = None  # from the journal: left with no R-F (stranded, cut)
     protocol_kept: bool = True  # no unexcused violation, and the daemon did not fail
@@ -226,7 +235,7 @@ def summary_lines(summary: Summary) -> list[str]:
             counts += f", {summary.casts_unfinished} unfinished"
         depth = summary.probe_depth_m
         if depth is not None and depth > HOME_M:
-            counts += f"; the probe left {depth:.2f} m down"
+            counts += f"; the probe left{_where(summary)} down"
         lines.append(counts)
     problems = summary.problems
     excused = len(summary.violations) - len(problems)
@@ -276,10 +285,19 @@ def verdict_line(summary: Summary) -> str:
     return f"{survey}: {measured}; {protocol} (exit status {summary.exit_code})"
 
 
+def _where(summary: Summary) -> str:
+    """the probe's last depth, an estimate said as one."""
+    depth = summary.probe_depth_m or 0.0
+    if summary.probe_range_m is None:
+        return f" {depth:.2f} m"
+    low, high = summary.probe_range_m
+    return f" about {depth:.2f} m (an estimate: between {low:.2f} and {high:.2f} m)"
+
+
 def _ending(summary: Summary) -> str | None:
     """How the run ended for the probe, saying only what is known."""
     depth = summary.probe_depth_m
-    at = "" if depth is None else f" at {depth:.2f} m"
+    at = "" if depth is None else f" at{_where(summary)}"
     if summary.stranded_at is not None:
         return (
             f"the probe stranded{at}: the daemon sent R-L (the fault, for the ground "
@@ -383,8 +401,8 @@ class SimConsole:
         if not self.live:
             self._line(line)
 
-    def frame_out(self, elapsed_s: float, message: Message) -> None:
-        self.sent.append(f"{elapsed_s:7.1f} s  → {describe_frame(message)}")
+    def frame_out(self, elapsed_s: float, message: Message, order: str = "big") -> None:
+        self.sent.append(f"{elapsed_s:7.1f} s  → {describe_frame(message, order)}")
 
     def frame_in(self, elapsed_s: float, message: Message) -> None:
         text = describe_frame(message)

@@ -1,6 +1,7 @@
 """The commands a person runs after `--simulate`, spelled so they work as printed.
 
-This module owns how the end of a run names its follow-up commands: `cc-daemon`
+This module owns how a run names the commands that follow it (and those that
+watch it while it goes, printed under its header): `cc-daemon`
 when the shell's PATH finds this very program, else the path it was started by
 (`.venv/bin/cc-daemon` after `make simulate` in a clone), and the `make`
 targets when the journal is the clone's own `./simulate.db`. It only builds
@@ -60,14 +61,35 @@ def next_steps(
     lines = [
         f"{run} casts --db {where}",
         f"{run} export --db {where} --format csv -o {_shown(stem.with_suffix('.csv'), cwd)}",
+        f"{run} sonde export --db {where} --format csv -o {_shown(Path(f'{stem}-sonde.csv'), cwd)}",
         f"{run} plot --db {where} --survey -o {_shown(Path(f'{stem}-survey.png'), cwd)}",
     ]
     if first_cast is not None:
         cast_png = Path(f"{stem}-cast-{first_cast}.png")
         lines.append(f"{run} plot --db {where} --cast {first_cast} -o {_shown(cast_png, cwd)}")
+    lines.append(f"{run} web --db {where}   (the field page: open the address it prints)")
     if db.absolute() == cwd / "simulate.db" and _has_make_targets(cwd):
         lines.append("make export plot   (CSV, GeoJSON, NetCDF and the survey map, beside it)")
     return lines
+
+
+def live_steps(
+    db: Path,
+    socket: Path,
+    findable: bool,
+    *,
+    argv0: str | None = None,
+    cwd: Path | None = None,
+) -> list[str]:
+    """The commands that watch this run while it goes, each runnable as printed in
+    another terminal: `status` and the field page, told the journal (`--db`), or
+    the socket itself when the run could not serve where `--db` looks."""
+    cwd = cwd or Path.cwd()
+    run = program(argv0, cwd=cwd)
+    where = _shown(db, cwd)
+    ask = f"--db {where}" if findable else f"--socket {_shown(socket, cwd)}"
+    web = f"--db {where}" if findable else f"--db {where} --socket {_shown(socket, cwd)}"
+    return [f"{run} status {ask} --watch", f"{run} web {web}"]
 
 
 def map_steps(db: Path, *, argv0: str | None = None, cwd: Path | None = None) -> list[str]:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
+from cc_daemon.config.statuspaths import SIMULATOR_JOURNAL
 from cc_daemon.sim.autopilot import UCM_2023_FRAME_PERIOD_S, AutopilotConfig, Firmware
 from cc_daemon.sim.lines import (
     DEFAULT_LINE_LENGTH_M,
@@ -31,7 +32,7 @@ from cc_daemon.sim.mission import (
 if TYPE_CHECKING:
     from cc_daemon.config import CastSettings, Settings
 
-DEFAULT_DB = Path("simulate.db")
+DEFAULT_DB = SIMULATOR_JOURNAL
 PATTERNS = ("stations", "lines")
 STALL_AT_M = 1.0  # shallower than every castable station's plan (>= 1.95 m)
 
@@ -162,8 +163,10 @@ class AutopilotOnlyOptions:
 # ---------------------------------------------------------------- settings
 
 
-def daemon_settings(options: SimOptions, port: Path) -> Settings:
-    """The daemon's settings for a run: the base ones, with the run's overrides."""
+def daemon_settings(options: SimOptions, port: Path, status: Path | None = None) -> Settings:
+    """The daemon's settings for a run: the base ones, with the run's overrides.
+    `status`: where its status socket goes unless the settings name one (default:
+    beside the pty)."""
     from cc_daemon.config import Settings
 
     pace = options.chosen_pace
@@ -191,9 +194,9 @@ def daemon_settings(options: SimOptions, port: Path) -> Settings:
     base["profile"].update(pace_profile(options))
     base["store"]["path"] = str(options.db_path.absolute())
     if base["status"]["path"] is None:
-        # The run's own status and control sockets, beside its pty: two simulations
-        # writing one journal each answer on their own (not `<journal>.status.sock`).
-        base["status"]["path"] = str(port.parent / "status.sock")
+        # Where `cc-daemon status --db JOURNAL` looks (the runner checks that no other
+        # run answers there), else the run's own, beside its pty.
+        base["status"]["path"] = str(status if status is not None else port.parent / "status.sock")
     if base["sonde"]["backend"] == "none":  # a simulated survey measures with a simulated sonde
         base["sonde"]["backend"] = "sim"
     return Settings.model_validate(base)

@@ -9,8 +9,10 @@ This module wires the simulator's pieces together for one run:
 - `simulate-autopilot` (`run_autopilot`): the simulated autopilot alone on a
   real serial port, against a daemon elsewhere (a Raspberry Pi over a USB cable).
 
-It talks to the daemon only through the wire and three public doors: `run()`,
-`request_shutdown()` and `snapshot()` (plus the journal file after the run).
+It talks to the daemon only through the wire and four public doors: `run()`,
+`request_shutdown()`, `snapshot()` and `record_event()` (the mission, once, as
+the flight plan a ground station would hand over: `store.stations`), plus the
+journal file after the run.
 It never edits the daemon's state, and leaves nothing behind but the journal
 and its log file: the pty pair and the temporary directory are gone when a run
 returns, however it ends. The options live in `options`, the frame loop in
@@ -33,6 +35,7 @@ from cc_daemon.sim.autopilot import Autopilot, AutopilotConfig, Phase
 from cc_daemon.sim.console import SimConsole
 from cc_daemon.sim.logtap import LogTap
 from cc_daemon.sim.mission import Mission, make_mission
+from cc_daemon.sim.nextsteps import live_steps
 from cc_daemon.sim.noise import BitFlipper
 from cc_daemon.sim.options import (
     REALTIME,
@@ -46,7 +49,9 @@ from cc_daemon.sim.options import (
 from cc_daemon.sim.port import FramePort
 from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.session import Run
+from cc_daemon.sim.statussocket import run_socket
 from cc_daemon.sim.summary import EXIT_FAILED, JournalCast, build_summary, journal_casts
+from cc_daemon.store.stations import PLAN_EVENT, plan_detail
 
 if TYPE_CHECKING:
     from cc_daemon.config import Settings
@@ -98,6 +103,16 @@ def _stations(count: int) -> str:
     return "1 station" if count == 1 else f"{count} stations"
 
 
+def _status_socket(
+    options: SimOptions, db_path: Path, workdir: Path, log: TextIO
+) -> tuple[Path, bool]:
+    """Where the run's daemon serves its status, and whether `--db` finds it there."""
+    configured = options.settings.status.path if options.settings is not None else None
+    if configured is not None:
+        return configured, False
+    return run_socket(db_path, workdir, log)
+
+
 @contextlib.contextmanager
 def _signals(run: Run, enabled: bool) -> Iterator[None]:
     loop = asyncio.get_running_loop()
@@ -137,7 +152,8 @@ async def run_simulation(options: SimOptions) -> int:
         PtyPair(Path(tmp) / "ttyAUTOPILOT") as pair,
         log_path.open("a", encoding="utf-8") as log_file,
     ):
-        settings = daemon_settings(options, pair.path)
+        socket, findable = _status_socket(options, db_path, Path(tmp), log_file)
+        settings = daemon_settings(options, pair.path, socket)
         autopilot = Autopilot(mission, autopilot_config(options, settings))
         daemon = Daemon(settings, simulation=True, simulators=SIMULATORS)
         run = Run(
@@ -170,7 +186,12 @@ async def run_simulation(options: SimOptions) -> int:
             except BaseException:
                 reset_logging()
                 raise
-        console.start(mission, _headline(options, mission))
+        status, page = live_steps(db_path, socket, findable)
+        console.start(
+            mission,
+            _headline(options, mission)
+            + f"\n  watch it from another terminal: {status}\n  or in a browser: {page}",
+        )
         daemon_task = asyncio.create_task(daemon.run(), name="daemon")
         daemon_exit: int | None = None
         try:
@@ -217,6 +238,16 @@ async def _survey(
     autopilot = run.autopilot
     problem = await _wait_ready(daemon, daemon_task)
     if problem is None:
+        # The mission, as a ground station's flight plan would give it: the journal
+        # then names and counts the stations as this run's summary does.
+        check = autopilot.config.check_plan
+        daemon.record_event(
+            PLAN_EVENT,
+            **plan_detail(
+                (s.name, *s.point.lat_lon, not s.too_shallow if check else None)
+                for s in run.mission.stations
+            ),
+        )
         await run.attach_pty()
         run.t0 = time.monotonic()
         run.wall0 = time.time()

@@ -163,7 +163,7 @@ class Run:
         return flipped_at
 
     async def _send(self, now: float, message: Message) -> None:
-        self.console.frame_out(now, message)
+        self.console.frame_out(now, message, self._timestamp_order())
         if self.port is None:
             self.frames_lost += 1  # the firmware writes into a dead UART
             return
@@ -171,6 +171,13 @@ class Run:
             await self.port.send(message)
         except OSError as exc:
             self.console.event(now, f"write failed: {exc}")
+
+    def _timestamp_order(self) -> str:
+        """How the autopilot's timestamps are read: as the daemon settled it, or, with
+        no daemon here to ask (`simulate-autopilot`), as this autopilot writes them."""
+        if self.daemon is not None:
+            return self.daemon.snapshot().timestamp_order
+        return "little" if self.autopilot.config.ucm_2023 else "big"
 
     def _on_received(self, received: Received) -> None:
         at = received.time - self.t0

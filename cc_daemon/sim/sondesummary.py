@@ -1,7 +1,7 @@
 """The simulated survey's sonde lines: per cast, the values at the surface and the bottom.
 
 This module owns the lines `--simulate`'s summary prints under its table when
-the journal holds sonde readings: one line per cast with its surface reading
+the journal holds sonde readings: one line per cast (and its station) with its surface reading
 (the shallowest within 1 m) and its bottom reading (the deepest), each value
 with its unit, and how many readings were missing. It reads the journal
 read-only and prints nothing itself.
@@ -14,6 +14,7 @@ from pathlib import Path
 from cc_daemon.export.sonde import parameter_map, surface_and_bottom
 from cc_daemon.store import JournalReader
 from cc_daemon.store.sonde import SondeSampleRecord
+from cc_daemon.store.stations import names
 
 
 def _values(reading: SondeSampleRecord, units: dict[str, str], depth_name: str) -> str:
@@ -36,6 +37,7 @@ def sonde_lines(db: Path, survey: int | None) -> list[str]:
             return []
         units = {c.name: c.unit for c in parameter_map(reader.events())}
         casts = reader.casts()
+        named = names(reader.stations())
     lines = []
     for cast in casts:
         mine = [s for s in samples if s.cast_id == cast.id]
@@ -44,7 +46,11 @@ def sonde_lines(db: Path, survey: int | None) -> list[str]:
             continue
         missing = sum(1 for s in mine if s.status not in ("ok",))
         simulated = " (simulated sonde)" if any(s.simulated for s in mine) else ""
-        head = f"cast {cast.id} sonde{simulated}: {len(mine)} readings, {missing} incomplete"
+        # A station refused with the probe not home is journaled as a cast that never
+        # planned a depth: its readings are where the probe hung, not a profile.
+        what = ", refused: the probe held where it stranded" if cast.planned_depth_m <= 0 else ""
+        where = f" ({named[cast.id]}{what})" if cast.id in named else ""
+        head = f"cast {cast.id}{where} sonde{simulated}: {len(mine)} readings, {missing} incomplete"
         top = "surface: none within 1 m" if surface is None else "surface " + _values(
             surface, units, "depth"
         )  # fmt: skip

@@ -23,6 +23,7 @@ from cc_daemon.sim.mission import (
     Mission,
     Point,
 )
+from cc_daemon.store.stations import MATCH_RADIUS_M
 
 if TYPE_CHECKING:
     from cc_daemon.sim.session import Run
@@ -44,8 +45,6 @@ REARM_HINT = (
     "at this station less than cast.rearm_s ago (120 s by default) does: it answers M "
     "with R-F at once. Wait that long between runs, or use another --seed."
 )
-
-_MATCH_RADIUS_M = 15.0  # a journal cast belongs to the station within this distance
 
 
 def _local(lat_deg: float, lon_deg: float) -> Point:
@@ -80,7 +79,9 @@ def journal_casts(db: Path, mission: Mission, survey: int | None) -> list[Journa
         for record in reader.casts():
             here = _local(record.lat_deg, record.lon_deg)
             nearest = min(mission.stations, key=lambda s: s.point.distance_to(here))
-            if nearest.point.distance_to(here) <= _MATCH_RADIUS_M:
+            if (
+                nearest.point.distance_to(here) <= MATCH_RADIUS_M
+            ):  # the journal's own rule (`store.stations`)
                 found.append(
                     JournalCast(
                         nearest.number,
@@ -227,8 +228,14 @@ def build_summary(
     status = run.status
     # Where the probe ended: the daemon's winch here, or what a remote daemon last said.
     probe_depth_m = status.probe_depth_m if status is not None else None
+    winch = status.winch if status is not None else None
+    probe_range_m = (
+        (winch.depth_low_m, winch.depth_high_m)
+        if winch is not None and winch.depth_low_m is not None and winch.depth_high_m is not None
+        else None
+    )
     if run.daemon is None:
-        probe_depth_m = ap.probe_depth_m
+        probe_depth_m, probe_range_m = ap.probe_depth_m, None
     problems = [v for v in violations if not v.excused]
     if run.daemon is None and any(v.kind is ViolationKind.UNEXPECTED_SKIP for v in problems):
         extra_notes.append(REARM_HINT)
@@ -288,6 +295,7 @@ def build_summary(
         notes=[*(notes or []), *extra_notes],
         daemon_exit=daemon_exit,
         probe_depth_m=probe_depth_m,
+        probe_range_m=probe_range_m,
         remote=run.daemon is None,
         protocol_kept=protocol_kept,
         survey_complete=survey_ok,

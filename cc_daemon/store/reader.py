@@ -39,7 +39,19 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, Self, TypeVar
 
-from cc_daemon.store import damage, files, guard, records, schema, scratch, sonar, sonde, surveys
+from cc_daemon.store import (
+    damage,
+    files,
+    guard,
+    records,
+    schema,
+    scratch,
+    sonar,
+    sonde,
+    stationrows,
+    surveys,
+)
+from cc_daemon.store import stations as station_rules
 from cc_daemon.store.damage import Salvage
 from cc_daemon.store.records import (
     CastRecord,
@@ -473,9 +485,22 @@ class JournalReader:
         return self._records(sonde.record, rows, "sonde samples")
 
     def surveys(self) -> list[SurveyRecord]:
-        """Every survey in the file (`store.surveys`), whatever `survey` is set to."""
+        """Every survey in the file (`store.surveys`), whatever `survey` is set to, its
+        stations counted as `store.stations` counts them."""
         rows = self._query(surveys.QUERY, (), "the surveys")
-        return self._records(surveys.record, rows, "surveys")
+        found = self._records(surveys.record, rows, "surveys")
+        places, plans = stationrows.places_and_plans(self, None)
+        return [surveys.counted(s, places.get(s.id, []), plans.get(s.id)) for s in found]
+
+    def stations(self) -> list[station_rules.Station]:
+        """The stations of the reader's survey (`store.stations`); of every survey, one
+        after the other, when it reads them all."""
+        places, plans = stationrows.places_and_plans(self, self.survey)
+        return [
+            station
+            for session in sorted(places.keys() | plans.keys(), key=lambda k: (k is None, k or 0))
+            for station in station_rules.stations(places.get(session, []), plans.get(session))
+        ]
 
     def select_survey(self, choice: str | int) -> SurveyRecord | None:
         """Read only the survey `choice` names (`latest`, a number, or `all`: None).

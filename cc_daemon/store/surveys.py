@@ -11,8 +11,10 @@ It never opens the file nor runs a query itself: `store.reader` runs `QUERY`
 (within its bounds) and hands each row to `record`.
 """
 
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
+from cc_daemon.store import stations as station_rules
 from cc_daemon.store.values import dated, integer, wall_time
 
 ALL = "all"
@@ -23,11 +25,12 @@ class SurveyRecord(NamedTuple):
     id: int  # the session's id
     start_wall_s: float
     end_wall_s: float  # the last row recorded
-    stations: int  # casts journaled: one per station, skipped or measured
-    measured: int  # casts completed
+    stations: int  # `store.stations`: the plan's, else those asked, skipped or measured
+    measured: int  # stations where a cast completed
     fixes: int
     simulated: bool | None  # None: not recorded (a journal older than version 4)
     winch_backend: str | None
+    castable: int = 0  # stations that could be cast at (not a shoal)
 
 
 QUERY = f"""
@@ -59,6 +62,18 @@ def record(row: tuple[Any, ...]) -> SurveyRecord | None:
         fixes=fixes,
         simulated=None if simulated is None else bool(simulated),
         winch_backend=backend if isinstance(backend, str) else None,
+    )
+
+
+def counted(
+    survey: SurveyRecord,
+    places: Sequence[station_rules.Place],
+    plan: Sequence[station_rules.PlannedStation] | None,
+) -> SurveyRecord:
+    """`survey` with its stations counted by `store.stations` (one count everywhere)."""
+    found = station_rules.counts(station_rules.stations(places, plan))
+    return survey._replace(
+        stations=found.stations, castable=found.castable, measured=found.measured
     )
 
 

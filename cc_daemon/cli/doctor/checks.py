@@ -32,9 +32,17 @@ UART_NAMES = re.compile(r"^(serial\d|ttyS\d+|ttyAMA\d+)$")
 def load_config(system: System, config: Path | None) -> tuple[Check, Settings | None]:
     path = config if config is not None else system.path(CONFIG_PATH)
     if config is None and not path.exists():
-        detail = f"no {CONFIG_PATH}: the defaults are in use (serial.port = /dev/serial0)"
+        # No file: the defaults, and the environment's CC_DAEMON_ variables over them
+        # (a web.listen set there is as much the field page's as one in a file).
+        try:
+            settings = load_settings(None, search_paths=())
+        except ConfigError as exc:
+            return Check(
+                "config", "FAIL", str(exc), "correct the CC_DAEMON_ variable it names"
+            ), None
+        detail = f"no {CONFIG_PATH}: the defaults are in use (serial.port = {settings.serial.port})"
         fix = "sudo make install writes the default file; edit serial.port and winch there"
-        return Check("config", "WARN", detail, fix), Settings()
+        return Check("config", "WARN", detail, fix), settings
     if path.exists() and not os.access(path, os.R_OK):
         fix = "run doctor with sudo, or join the group: sudo usermod -aG cc-daemon $USER"
         return Check("config", "FAIL", f"{path} is not readable by you", fix), None
@@ -244,7 +252,10 @@ def check_clock(system: System) -> Check:
 
 def check_service(system: System, settings: Settings) -> Iterator[Check]:
     state = system.state()
-    if state is None:
+    if state is None and system.image:
+        what = f"not asked: --root {system.root} is a system image, not this running system"
+        yield Check("service", "SKIP", what)
+    elif state is None:
         yield Check("service", "WARN", "systemd could not be asked", "systemctl status cc-daemon")
     elif state == "active":
         yield Check("service", "OK", "cc-daemon is active")

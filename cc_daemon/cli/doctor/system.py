@@ -74,6 +74,11 @@ class System:
             return path
         return self.root / path.relative_to(path.anchor) if path.is_absolute() else path
 
+    @property
+    def image(self) -> bool:
+        """Whether the checks read a system image (`--root`), not the running system."""
+        return self.root != Path("/")
+
     def state(self) -> str | None:
         if self.service_state is not None:
             return self.service_state()

@@ -11,7 +11,12 @@ from pathlib import Path
 from cc_daemon.cli.status.client import StatusUnavailable, read_status
 from cc_daemon.cli.status.view import render_text, watch
 from cc_daemon.config import StatusSettings
-from cc_daemon.config.statuspaths import client_socket_paths, present
+from cc_daemon.config.statuspaths import (
+    SIMULATOR_JOURNAL,
+    client_socket_paths,
+    hand_socket_path,
+    present,
+)
 from cc_daemon.core.errors import ConfigError
 
 
@@ -43,7 +48,9 @@ def socket_candidates(
     socket_path: Path | None, config: Path | None, db: Path | None = None
 ) -> list[Path]:
     """--socket alone, else the configuration's status.path alone, else where a daemon
-    started by hand with the same configuration (and --db) binds, then the service's."""
+    started by hand with the same configuration (and --db) binds, then, with no
+    journal named anywhere, where `cc-daemon --simulate` run here binds (its
+    `./simulate.db`), then the service's."""
     if socket_path is not None:
         return [socket_path]
     from cc_daemon.config import load_settings
@@ -58,7 +65,12 @@ def socket_candidates(
             raise
         settings = None  # e.g. /etc/cc-daemon unreadable to this user: use the default
     # The same rule the daemon bound by (`statuspaths`).
-    return client_socket_paths(settings, journal=db if db is not None else journal)
+    paths = client_socket_paths(settings, journal=db if db is not None else journal)
+    if db is None and journal is None and len(paths) > 1:
+        simulation = hand_socket_path(SIMULATOR_JOURNAL.absolute())
+        if simulation is not None and simulation not in paths:
+            paths.insert(-1, simulation)
+    return paths
 
 
 def run_status(args: argparse.Namespace) -> int:

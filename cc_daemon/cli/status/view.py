@@ -102,10 +102,17 @@ def status_lines(doc: Document) -> list[tuple[str, str]]:
     rows.append(("cast", text))
     reported = cast.get("fault_reported")
     if isinstance(reported, dict):
+        low, high = reported.get("depth_low_m"), reported.get("depth_high_m")
+        where = f"probe at {reported.get('depth_m', 0):.2f} m"
+        if isinstance(low, int | float) and isinstance(high, int | float):
+            where = (
+                f"probe between {low:.2f} and {high:.2f} m (an estimate: best "
+                f"{reported.get('depth_m', 0):.2f} m)"
+            )
         rows.append(
             (
                 "STRANDED",
-                f"probe at {reported.get('depth_m', 0):.2f} m ({reported.get('fault')}); "
+                f"{where} ({reported.get('fault')}); "
                 f"R-L sent to the autopilot x{reported.get('r_l_sent', 0)}, no R-F",
             )
         )

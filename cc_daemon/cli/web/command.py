@@ -55,13 +55,15 @@ def run_web(args: argparse.Namespace) -> int:
             print(f'cc-daemon web: --listen {args.listen}: must be "host:port"', file=sys.stderr)
             return EXIT_USAGE
         web = web.model_copy(update={"listen": args.listen})
-    sockets = socket_candidates(args.socket, args.config)
+    # The daemon writing the journal read here: found by it, as `status --db` does.
+    sockets = socket_candidates(args.socket, args.config, args.db)
     sources = Sources(
         socket=sockets[0],
         also=tuple(sockets[1:]),
         journal=journal_path(argparse.Namespace(db=args.db or settings.store.path)),
         password_hash=web.password_hash,
         hosts=frozenset(web.hosts),
+        survey=settings.survey,
     )
 
     def ready(address: str, connections: int) -> None:

@@ -16,6 +16,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from cc_daemon.cli import exportfiles
 from cc_daemon.cli.web import journaldata
 from cc_daemon.cli.web.journaldata import NotFound
 from cc_daemon.cli.web.pipe import CHUNK, Pipe
@@ -25,6 +26,9 @@ FORMATS = {
     "csv": "text/csv; charset=utf-8",
     "geojson": "application/geo+json",
     "nc": "application/x-netcdf",
+    # The sonde's readings: `cc-daemon sonde export --format csv|netcdf`.
+    "sonde.csv": "text/csv; charset=utf-8",
+    "sonde.nc": "application/x-netcdf",
 }
 FIX_BATCH = 500  # fixes in memory at once, with their features and text: about 2 MB
 
@@ -33,7 +37,14 @@ def writer(path: Path, survey: int, fmt: str) -> Callable[[Pipe], None]:
     """What writes survey `survey` as `fmt` (a key of FORMATS) to a pipe. It raises
     NotFound, StoreError, OptionalDependencyError (netCDF4 missing) or ValueError
     (NetCDF of a survey without a cast) before it writes anything."""
-    return {"csv": _csv, "geojson": _geojson, "nc": _netcdf}[fmt](path, survey)
+    makers = {
+        "csv": _csv,
+        "geojson": _geojson,
+        "nc": _netcdf,
+        "sonde.csv": _sonde_csv,
+        "sonde.nc": _sonde_netcdf,
+    }
+    return makers[fmt](path, survey)
 
 
 def _chosen(reader: JournalReader, survey: int) -> list[CastRecord]:
@@ -49,15 +60,26 @@ def _chosen(reader: JournalReader, survey: int) -> list[CastRecord]:
 
 def _csv(path: Path, survey: int) -> Callable[[Pipe], None]:
     def write(out: Pipe) -> None:
-        from cc_daemon.export import csv
-        from cc_daemon.export.provenance import of_casts
-
         with journaldata._open(path) as reader:
             casts = _chosen(reader, survey)
             samples = (s for cast in casts for s in reader.samples(cast_id=cast.id))
-            csv.write_samples(samples, out.as_text(), provenance=of_casts(casts).comment())
+            exportfiles.samples_csv(reader, casts, samples, out.as_text())
 
     return write
+
+
+def _sonde_csv(path: Path, survey: int) -> Callable[[Pipe], None]:
+    def write(out: Pipe) -> None:
+        with journaldata._open(path) as reader:
+            _chosen(reader, survey)
+            exportfiles.sonde_csv(reader, None, out.as_text())
+
+    return write
+
+
+def _sonde_netcdf(path: Path, survey: int) -> Callable[[Pipe], None]:
+    return _from_file(path, survey, lambda reader, target: exportfiles.sonde_netcdf(
+        reader, None, target))  # fmt: skip
 
 
 def _geojson(path: Path, survey: int) -> Callable[[Pipe], None]:
@@ -72,16 +94,28 @@ def _geojson(path: Path, survey: int) -> Callable[[Pipe], None]:
 
 
 def _netcdf(path: Path, survey: int) -> Callable[[Pipe], None]:
-    def write(out: Pipe) -> None:
+    def made(reader: JournalReader, target: Path) -> None:
         from cc_daemon.export import netcdf
 
+        casts = reader.casts()
+        samples: list[SampleRecord] = reader.samples()
+        netcdf.write(casts, samples, target)
+
+    return _from_file(path, survey, made)
+
+
+def _from_file(
+    path: Path, survey: int, make: Callable[[JournalReader, Path], object]
+) -> Callable[[Pipe], None]:
+    """A file its library writes to a path (NetCDF): made in a temporary directory,
+    then sent, and removed however the download ends."""
+
+    def write(out: Pipe) -> None:
         with tempfile.TemporaryDirectory(prefix="cc-daemon-web-") as tmp:
             target = Path(tmp) / "survey.nc"
             with journaldata._open(path) as reader:
-                casts = _chosen(reader, survey)
-                samples: list[SampleRecord] = reader.samples()
-                netcdf.write(casts, samples, target)
-                del samples
+                _chosen(reader, survey)
+                make(reader, target)
             with target.open("rb") as made:
                 while chunk := made.read(CHUNK):
                     out.write_bytes(chunk)

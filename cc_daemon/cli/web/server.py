@@ -15,25 +15,29 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import re
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import IO, TYPE_CHECKING, Any
 
 import structlog
 from aiohttp import web
 
 from cc_daemon.cli.status.client import StatusUnavailable, read_status
-from cc_daemon.cli.web import downloads, journaldata
+from cc_daemon.cli.web import downloads, journaldata, science
 from cc_daemon.cli.web.auth import BasicAuth
 from cc_daemon.cli.web.guard import Refused, add_headers, default_names, middleware, number
 from cc_daemon.cli.web.listener import Listener, open_sockets
-from cc_daemon.cli.web.pipe import Pipe
+from cc_daemon.cli.web.pipe import CHUNK, Pipe
 from cc_daemon.cli.web.policy import Limits
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import StoreError
+
+if TYPE_CHECKING:
+    from cc_daemon.config.survey import SurveySettings
 
 log = structlog.get_logger(__name__)
 
@@ -51,10 +55,17 @@ DOWNLOADS_AT_ONCE = 2
 # What every open page asks on a timer is read once for all of them within this:
 # where the service's user cannot write beside the journal, each read copies it.
 JOURNAL_SHARED_S = {"latest": 4.5, "surveys": 10.0}
+# The science's files, by the names the commands give them (`science.PRODUCTS`).
+PRODUCT_NAMES = "|".join(re.escape(name) for name in science.PRODUCTS)
 ASSETS = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/static/page.css": ("page.css", "text/css; charset=utf-8"),
     "/static/page.js": ("page.js", "text/javascript; charset=utf-8"),
+    "/static/words.js": ("words.js", "text/javascript; charset=utf-8"),
+    "/static/draw.js": ("draw.js", "text/javascript; charset=utf-8"),
+    "/static/today.js": ("today.js", "text/javascript; charset=utf-8"),
+    "/static/dom.js": ("dom.js", "text/javascript; charset=utf-8"),
+    "/static/science.js": ("science.js", "text/javascript; charset=utf-8"),
 }
 
 
@@ -65,6 +76,7 @@ class Sources:
     password_hash: str | None = None
     also: tuple[Path, ...] = ()
     hosts: frozenset[str] = frozenset({"localhost"})  # names answered (`guard.default_names`)
+    survey: SurveySettings | None = None  # the map's `[survey]` keys (None: the defaults)
 
 
 def asset(name: str) -> bytes:
@@ -145,6 +157,7 @@ async def _journal(
     call: Callable[..., Any],
     *args: Any,
     shared: tuple[Shared, str] | None = None,
+    finish: Callable[[Any], Any] | None = None,
 ) -> web.Response:
     async def produce() -> Any:
         async with gate:
@@ -156,7 +169,7 @@ async def _journal(
         raise Refused(404, str(exc)) from None
     except StoreError as exc:
         raise Refused(503, str(exc)) from None
-    return web.json_response(body)
+    return web.json_response(body if finish is None else finish(body))
 
 
 async def _first(chunks: AsyncIterator[bytes], survey: int) -> bytes | None:
@@ -207,6 +220,7 @@ def build_app(sources: Sources, limits: Limits | None = None) -> web.Application
     download_turns = asyncio.Semaphore(DOWNLOADS_AT_ONCE)
     download_threads = ThreadPoolExecutor(DOWNLOADS_AT_ONCE, thread_name_prefix="download")
     shared = Shared()
+    made = science.Science(sources.journal, sources.survey)
     pages = {path: (asset(name), kind) for path, (name, kind) in ASSETS.items()}
 
     async def page(request: web.Request) -> web.Response:
@@ -230,9 +244,11 @@ def build_app(sources: Sources, limits: Limits | None = None) -> web.Application
         return await _journal(gate, journaldata.cast_profile, sources.journal, n)
 
     async def api_latest(request: web.Request) -> web.Response:
+        # Shared for a few seconds; each reading's age is as of this answer.
         return await _journal(
-            gate, journaldata.latest, sources.journal, time.time(), shared=(shared, "latest")
-        )
+            gate, journaldata.latest, sources.journal, time.time(), shared=(shared, "latest"),
+            finish=lambda doc: journaldata.aged(doc, time.time()),
+        )  # fmt: skip
 
     async def api_events(request: web.Request) -> web.Response:
         text = request.query.get("survey")
@@ -249,7 +265,7 @@ def build_app(sources: Sources, limits: Limits | None = None) -> web.Application
                 response = web.StreamResponse(
                     headers={
                         "Content-Type": downloads.FORMATS[fmt],
-                        "Content-Disposition": f'attachment; filename="survey-{n}.{fmt}"',
+                        "Content-Disposition": f'attachment; filename="survey-{n}{_dot(fmt)}"',
                     }
                 )
                 with contextlib.suppress(ConnectionError):
@@ -259,8 +275,45 @@ def build_app(sources: Sources, limits: Limits | None = None) -> web.Application
                 await chunks.aclose()
         return response
 
+    async def science_of(n: int) -> science.Made:
+        try:
+            return await made.get(n)
+        except journaldata.NotFound as exc:
+            raise Refused(404, str(exc)) from None
+        except StoreError as exc:
+            raise Refused(503, str(exc)) from None
+
+    async def api_science(request: web.Request) -> web.Response:
+        n = number(request.match_info["n"], "survey")
+        found = await science_of(n)
+        return web.json_response({**found.doc, **made.state(found)})
+
+    async def product(request: web.Request) -> web.StreamResponse:
+        n, name = number(request.match_info["n"], "survey"), request.match_info["name"]
+        found = await science_of(n)
+        part, kind = science.PRODUCTS[name]
+        try:
+            f = (found.directory / part / name).open("rb")
+        except FileNotFoundError:
+            why = found.doc[part].get("why") or "; ".join(found.doc[part].get("notes", []))
+            raise Refused(404, f"survey {n}: no {name}{f': {why}' if why else ''}") from None
+        with f:
+            chunks = _read(f)
+            response = web.StreamResponse(
+                headers={
+                    "Content-Type": kind,
+                    "Content-Disposition": f'attachment; filename="survey-{n}-{name}"',
+                }
+            )
+            with contextlib.suppress(ConnectionError):
+                await response.prepare(request)
+                await _send(request, response, await anext(chunks, None), chunks,
+                            limits.send_stall_s)  # fmt: skip
+        return response
+
     async def stop(app: web.Application) -> None:
         status.close()
+        await asyncio.to_thread(made.close)
         if auth is not None:
             auth.close()
         download_threads.shutdown(wait=True, cancel_futures=True)
@@ -278,10 +331,24 @@ def build_app(sources: Sources, limits: Limits | None = None) -> web.Application
         ("/api/casts/{n}/profile", api_profile),
         ("/api/events", api_events),
         ("/api/latest", api_latest),
+        ("/api/surveys/{n}/science", api_science),
+        ("/download/survey/{n}/{name:" + PRODUCT_NAMES + "}", product),
+        # The sonde's first: `3-sonde.csv` would otherwise be survey "3-sonde", as CSV.
+        (r"/download/survey/{n}-{fmt:sonde\.csv|sonde\.nc}", download),
         (r"/download/survey/{n}.{fmt:csv|geojson|nc}", download),
     ]:
         app.router.add_get(path, handler, allow_head=False)
     return app
+
+
+async def _read(f: IO[bytes]) -> AsyncIterator[bytes]:
+    while chunk := await asyncio.to_thread(f.read, CHUNK):
+        yield chunk
+
+
+def _dot(fmt: str) -> str:
+    """How a download's name ends: `.csv`, or `-sonde.csv` for the sonde's readings."""
+    return f"-{fmt}" if fmt.startswith("sonde.") else f".{fmt}"
 
 
 def split_listen(listen: str) -> tuple[str, int]:

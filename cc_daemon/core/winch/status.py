@@ -29,6 +29,11 @@ class WinchStatus(NamedTuple):
     # A sensor found untrustworthy and no longer used (the motor current or the
     # supply: overcurrent by pulses only); the winch still moves.
     sensor_fault: str | None = None
+    # While the count is in doubt (a dead or babbling encoder), `depth_m` is a best
+    # estimate and the probe is somewhere in [depth_low_m, depth_high_m]; None when
+    # the depth is measured.
+    depth_low_m: float | None = None
+    depth_high_m: float | None = None
 
 
 HOMING_FAILED = "homing failed"  # how a start-up homing fault's text begins

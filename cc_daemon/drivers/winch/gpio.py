@@ -164,6 +164,7 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
     def status(self) -> WinchStatus:
         self._changed.clear()
         running = self._bridge.direction is not Direction.STOPPED
+        estimate = self.depth_estimate
         return WinchStatus(
             depth_m=self.depth_m,  # the count's, or the best estimate when it is in doubt
             # Settling at the switch is still arriving: home is not yet verified.
@@ -177,6 +178,8 @@ class GpioWinch(EdgeCounting, CountTrust, HomeWitnessing):
             # hand haul runs (it must not stop the haul that can clear it).
             fault=self._fault or (self._distrust if not running else None),
             sensor_fault=self._sensing.fault,
+            depth_low_m=estimate.low_m if estimate is not None else None,
+            depth_high_m=estimate.high_m if estimate is not None else None,
         )
 
     def move_to(self, depth_m: float, *, slow: bool = False, pace: float = 1.0) -> None:

@@ -103,6 +103,25 @@ def response_times(
     return found
 
 
+def lag_method(casts: Sequence[CastRecord], notes: list[str]) -> Method:
+    """`inverse`, or `none` when every cast that says what it was planned to resolve
+    says nothing (`profile.resolve = []`, as the simulator's fast pace plans them): its
+    descent was not slowed for any sensor, the readings lie too far apart for a lag to
+    be taken out (at 1.25 m a reading, the inverse drew water warmer than any
+    there), and a corrected profile would overstate."""
+    said = [
+        c.plan["profile"].get("resolve") for c in casts if isinstance(c.plan.get("profile"), dict)
+    ]
+    if said and all(r == [] for r in said):
+        notes.append(
+            "sensor lags not corrected: the casts were planned to resolve no sensor's lag"
+            " (profile.resolve = []), their readings too far apart to take one out"
+            " (--lag-correction inverse corrects them all the same)"
+        )
+        return "none"
+    return "inverse"
+
+
 def _planned(casts: Sequence[CastRecord], key: str) -> set[Any]:
     found = set()
     for cast in casts:
@@ -169,13 +188,16 @@ def profile_survey(
     events: Iterable[EventRecord],
     *,
     bin_m: float | None = None,
-    method: Method = "inverse",
+    method: Method | None = None,
     lake: Hypsography | None = None,
 ) -> Survey:
     """The casts' profiles on one grid of bins, and what each says. Raises ValueError
-    when no cast has a reading to make a profile of."""
+    when no cast has a reading to make a profile of. `method` None: `inverse`, unless
+    the casts were planned to resolve no sensor's lag (`lag_method`)."""
     events = list(events)
     notes: list[str] = []
+    if method is None:
+        method = lag_method(casts, notes)
     tables, depth_name = _journaled_map(events)
     every = parameter_map(events, samples)
     depth_name = depth_name or _named(every, "depth", "depth", None)

@@ -45,8 +45,12 @@ def levels(depth: FloatArray, interval: float) -> list[float]:
 
 
 def contours(x: FloatArray, y: FloatArray, depth: FloatArray, interval: float) -> list[Contour]:
-    """The contour lines of `depth` (rows along `y`, columns along `x`) every `interval`."""
+    """The contour lines of `depth` (rows along `y`, columns along `x`) every `interval`;
+    none on a grid one cell wide or tall (a single line sailed: nothing to contour)."""
     import contourpy
+
+    if depth.ndim != 2 or min(depth.shape) < 2:
+        return []
 
     masked = np.ma.masked_invalid(depth)
     generator = contourpy.contour_generator(

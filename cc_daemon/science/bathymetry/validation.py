@@ -80,12 +80,15 @@ def block_kfold(
     if len(found) < MIN_PREDICTED:
         return CrossValidation(float("nan"), float("nan"), len(found), folds, block_m, float("nan"))
     # A held-out median carries its own noise; the map's error is what is left of the
-    # residuals' mean square once that is taken out.
+    # residuals' mean square once that is taken out. Never less than the bias: the
+    # noise has no mean, so it cannot explain one (an RMSE of 0 beside a bias of
+    # 1 cm would claim a perfect map).
     raw = float(np.mean(found**2))
     noise_ms = float(np.mean(own**2))
+    bias = float(np.mean(found))
     return CrossValidation(
-        float(np.sqrt(max(raw - noise_ms, 0.0))),
-        float(np.mean(found)),
+        float(np.sqrt(max(raw - noise_ms, bias**2))),
+        bias,
         len(found),
         folds,
         block_m,
