@@ -252,31 +252,41 @@ def _bed(survey_map: SurveyMap, directory: Path) -> dict[str, Any]:
     }
 
 
-def _cells(survey_map: SurveyMap) -> list[list[Any]]:
-    """The grid's depths averaged over at most CELLS_ACROSS cells a side, each as its four
-    corners (longitude, latitude) and its depth; a block with no mapped cell is left out."""
+def _cells(survey_map: SurveyMap) -> dict[str, Any]:
+    """The grid's depths averaged over blocks of `step` cells a side (at most CELLS_ACROSS
+    blocks a side), row by row from the south-west (null: no cell of the block mapped),
+    and where a cell's corner is: `origin` (the south-west corner of the grid's first
+    cell) plus `i` times `di` plus `j` times `dj`, in longitude and latitude, for cell
+    corner (i, j). The projection is not quite affine (1.4 mm off at 130 m from the
+    origin, growing with the square of the distance: metres at 5 km, under a pixel of
+    the page's map), and 2,304 blocks cost about 12 kB where their corners cost 200 kB."""
     import numpy as np
     from pyproj import Transformer
 
     grid = survey_map.bed.grid
     x, y, depth = grid.spec.x, grid.spec.y, grid.depth_m
     step = max(1, math.ceil(max(len(x), len(y)) / CELLS_ACROSS))
-    half = survey_map.bed.cell_m / 2
+    cell = survey_map.bed.cell_m
     back = Transformer.from_crs(survey_map.soundings.crs, "EPSG:4326", always_xy=True)
-    out: list[list[Any]] = []
+    x0, y0 = float(x[0]) - cell / 2, float(y[0]) - cell / 2
+    lon, lat = back.transform([x0, x0 + cell * len(x), x0], [y0, y0, y0 + cell * len(y)])
+    rows = []
     for j in range(0, len(y), step):
+        row = []
         for i in range(0, len(x), step):
             block = depth[j : j + step, i : i + step]
-            if not np.isfinite(block).any():
-                continue
-            x0, x1 = x[i] - half, x[min(i + step, len(x)) - 1] + half
-            y0, y1 = y[j] - half, y[min(j + step, len(y)) - 1] + half
-            lon, lat = back.transform([x0, x1, x1, x0], [y0, y0, y1, y1])
-            corners = [
-                [round(float(a), 7), round(float(b), 7)] for a, b in zip(lon, lat, strict=True)
-            ]
-            out.append([corners, round(float(np.nanmean(block)), 2)])
-    return out
+            found = np.isfinite(block).any()
+            row.append(round(float(np.nanmean(block)), 2) if found else None)
+        rows.append(row)
+    return {
+        "step": step,
+        "nx": len(x),
+        "ny": len(y),
+        "origin": [float(lon[0]), float(lat[0])],
+        "di": [float(lon[1] - lon[0]) / len(x), float(lat[1] - lat[0]) / len(x)],
+        "dj": [float(lon[2] - lon[0]) / len(y), float(lat[2] - lat[0]) / len(y)],
+        "depths": rows,
+    }
 
 
 def _profiles(journal: Path, survey: int, lake: Any, directory: Path) -> dict[str, Any]:

@@ -15,11 +15,24 @@ export function toFrame(frame, point) {
 export function bedLayers(science, frame) {
   const bed = science && science.map;
   if (!bed || !frame || !bed.cells) return null;
-  const cells = bed.cells.map(([corners, depth]) => ({ points: corners.map((p) => toFrame(frame, p)), depth }));
+  const cells = blocks(bed.cells).map(({ corners, depth }) => ({ points: corners.map((p) => toFrame(frame, p)), depth }));
   const contours = bed.contours.map((c) => ({
     depth: c.depth_m, lines: c.lines.map((line) => line.map((p) => toFrame(frame, p))) }));
   const deepest = Math.max(0.1, ...cells.map((c) => c.depth), ...contours.map((c) => c.depth));
   return { cells, contours, deepest };
+}
+
+// The grid's blocks, each with its corners in longitude and latitude: corner (i, j) of the
+// fine grid is origin + i * di + j * dj; a block at the grid's edge ends with the grid.
+export function blocks(g) {
+  const at = (i, j) => [g.origin[0] + i * g.di[0] + j * g.dj[0], g.origin[1] + i * g.di[1] + j * g.dj[1]];
+  const out = [];
+  g.depths.forEach((row, bj) => row.forEach((depth, bi) => {
+    if (depth === null) return;
+    const i0 = bi * g.step, i1 = Math.min(i0 + g.step, g.nx), j0 = bj * g.step, j1 = Math.min(j0 + g.step, g.ny);
+    out.push({ depth, corners: [at(i0, j0), at(i1, j0), at(i1, j1), at(i0, j1)] });
+  }));
+  return out;
 }
 
 // What the map's lake floor is: its shades' bar, and a sentence with its units and how
@@ -28,11 +41,11 @@ export function bedLegend(science) {
   const bed = science && science.map;
   if (!bed) return [];
   if (bed.why) return [`Lake floor: not mapped: ${bed.why}.`];
-  if (!bed.cells.length) {
+  const depths = blocks(bed.cells).map((b) => b.depth);
+  if (!depths.length) {
     return [`Lake floor: no cell mapped yet from ${plural(bed.figures.soundings.kept, "sounding")}`
       + ` (${madeWords(science)}): a second line gives the first cells.`];
   }
-  const depths = bed.cells.map(([, depth]) => depth);
   const bar = el("span", { class: "chunk" }, metres(Math.min(...depths), 1), " ",
     el("span", { class: "depth-bar" }), " ", metres(Math.max(...depths), 1));
   return [el("span", { class: "bar-line" }, "Depth: ", bar), bedWords(science)];
