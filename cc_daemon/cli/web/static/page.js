@@ -93,6 +93,7 @@ function banner(doc, shown, stale) {
 function now(doc, stale) {
   if (!doc) {
     $("#state").textContent = "The daemon has not answered since this page opened.";
+    $("#state").className = "state stale";  // nothing known: never the green of a good state
     $("#summary").replaceChildren();
     return;
   }
