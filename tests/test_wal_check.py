@@ -68,3 +68,28 @@ def test_a_log_that_grew_is_checked_from_where_the_last_check_stopped(
     said = check(db)
     assert said is not None and "the write-ahead log is damaged at frame" in said
     assert said == WalCheck()(db)  # the same verdict as a check from the start
+
+
+def test_a_frame_read_while_the_daemon_wrote_it_is_read_again_not_called_damage(
+    writer: tuple[Path, sqlite3.Connection], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Seen beside a writing daemon (tests/test_snapshot.py, an idle make test): the
+    # check read a frame half written, then the frames written after it, and said the
+    # log was damaged at frame 65 of 1005. Here the "writer" finishes the frame while
+    # the check waits to read it again.
+    from cc_daemon.store import walcheck
+
+    db, conn = writer
+    grow(conn, 60)
+    wal = Path(f"{db}-wal")
+    whole = wal.read_bytes()
+    flip_wal_byte(db, frame=20)  # as read in flight
+    monkeypatch.setattr(walcheck, "_settle", lambda: wal.write_bytes(whole), raising=False)
+    assert WalCheck()(db) is None
+    # A frame that stays bad is damage all the same, after the rereads.
+    flip_wal_byte(db, frame=20)
+    waits: list[int] = []
+    monkeypatch.setattr(walcheck, "_settle", lambda: waits.append(1))
+    said = WalCheck()(db)
+    assert said is not None and "damaged at frame 20 of" in said
+    assert len(waits) == walcheck._ATTEMPTS

@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import struct
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -28,6 +29,9 @@ _WAL_HEADER = 32
 _FRAME_HEADER = 24
 _ATTEMPTS = 3  # a live log the daemon restarts while we read is read again, this often
 _REMEMBERED = 32  # logs whose progress is kept (a process reads one journal, or a few)
+# A frame the daemon is writing as we read it reads as bad, and the frames it writes
+# next as following a bad one: such a frame is read again, after this, this often.
+_REREAD_S = 0.05
 
 
 def _checksum(data: bytes, s0: int, s1: int, big_endian: bool) -> tuple[int, int]:
@@ -139,12 +143,23 @@ class WalCheck:
                 del self._seen[next(iter(self._seen))]  # the oldest
             self._seen[name] = at
         _scan(log, st.st_size, at)
+        for _ in range(_ATTEMPTS):
+            if at.bad is None or not at.after_bad:
+                break
+            _settle()  # a frame in flight is whole a moment later; a damaged one is not
+            at.frames, at.size = at.bad, _WAL_HEADER + at.bad * step
+            at.bad, at.after_bad = None, False
+            _scan(log, os.fstat(log.fileno()).st_size, at)
         if at.bad is not None and at.after_bad:
             return (
                 f"the write-ahead log is damaged at frame {at.bad + 1} of {frames}:"
                 f" the last {frames - at.bad} frames (the newest rows) are not read"
             )
         return None
+
+
+def _settle() -> None:
+    time.sleep(_REREAD_S)
 
 
 def wal_damage(db: Path) -> str | None:
