@@ -18,9 +18,8 @@ from pathlib import Path
 
 from cc_daemon.cli import exportfiles
 from cc_daemon.cli.web import journaldata
-from cc_daemon.cli.web.journaldata import NotFound
 from cc_daemon.cli.web.pipe import CHUNK, Pipe
-from cc_daemon.store import CastRecord, JournalReader, SampleRecord, StoreError
+from cc_daemon.store import CastRecord, JournalReader, SampleRecord
 
 FORMATS = {
     "csv": "text/csv; charset=utf-8",
@@ -48,13 +47,7 @@ def writer(path: Path, survey: int, fmt: str) -> Callable[[Pipe], None]:
 
 
 def _chosen(reader: JournalReader, survey: int) -> list[CastRecord]:
-    try:
-        reader.select_survey(survey)
-    except StoreError as exc:
-        raise NotFound(str(exc)) from None
-    damage = reader.damage_report()
-    if damage is not None:  # said before the first byte, not after the last
-        raise StoreError(damage)
+    journaldata.undamaged_survey(reader, survey)  # said before the first byte, not after
     return reader.casts()
 
 

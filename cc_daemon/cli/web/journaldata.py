@@ -15,6 +15,7 @@ from cc_daemon.store import JournalReader, StoreError
 from cc_daemon.store.records import EventRecord
 from cc_daemon.store.stationrows import first_events
 from cc_daemon.store.stations import names
+from cc_daemon.store.surveys import SurveyRecord
 from cc_daemon.store.track import Extent, track
 from cc_daemon.store.values import json_value
 
@@ -45,6 +46,19 @@ def _choose(reader: JournalReader, survey: int) -> None:
         reader.select_survey(survey)
     except StoreError as exc:
         raise NotFound(str(exc)) from None
+
+
+def undamaged_survey(reader: JournalReader, survey: int) -> SurveyRecord | None:
+    """Narrow `reader` to `survey` (NotFound if there is none) and refuse a damaged
+    journal (StoreError, its damage in one line) before anything is made from it."""
+    try:
+        chosen = reader.select_survey(survey)
+    except StoreError as exc:
+        raise NotFound(str(exc)) from None
+    damage = reader.damage_report()
+    if damage is not None:
+        raise StoreError(damage)
+    return chosen
 
 
 def surveys(path: Path) -> dict[str, Any]:

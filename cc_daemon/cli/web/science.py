@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import structlog
 
-from cc_daemon.cli.web.journaldata import NotFound, _clean, _open
+from cc_daemon.cli.web.journaldata import NotFound, _clean, _open, undamaged_survey
 from cc_daemon.export import OptionalDependencyError
 from cc_daemon.store import StoreError
 
@@ -180,19 +180,10 @@ def _survey_map(journal: Path, survey: int, settings: SurveySettings | None) -> 
 
     options = MapOptions() if settings is None else MapOptions(survey=settings)
     with _open(journal) as reader:
-        chosen = _select(reader, survey)
+        chosen = undamaged_survey(reader, survey)
+        if chosen is None:
+            raise NotFound(f"no survey {survey}")
         return make_map(reader, chosen, options)
-
-
-def _select(reader: Any, survey: int) -> Any:
-    try:
-        chosen = reader.select_survey(survey)
-    except StoreError as exc:
-        raise NotFound(str(exc)) from None
-    damage = reader.damage_report()
-    if damage is not None:
-        raise StoreError(damage)
-    return chosen
 
 
 def _write_each(directory: Path, writers: dict[str, Callable[[Path], object]]) -> list[str]:
@@ -298,7 +289,7 @@ def _profiles(journal: Path, survey: int, lake: Any, directory: Path) -> dict[st
     except ImportError as exc:
         return {"why": MISSING_LIBRARY.format(name=exc.name, what="the profiles")}
     with _open(journal) as reader:
-        _select(reader, survey)
+        undamaged_survey(reader, survey)
         casts = reader.casts()
         samples = reader.sonde_samples()
         happened = reader.events()
