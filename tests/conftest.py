@@ -10,8 +10,13 @@ import pytest
 
 from cc_daemon.ground.logsetup import reset_logging
 from cc_daemon.store import spill
-from tests import hygiene
+from tests import hygiene, schedule
 from tests.daemonkit import DaemonProcess
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The longest tests first, so that the workers end together (tests/schedule.py)."""
+    schedule.longest_first(items)
 
 
 # First of the autouse fixtures, so set up before and torn down after every other one.

@@ -13,6 +13,7 @@ import contextlib
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -149,15 +150,35 @@ class Day:
         self.url, self.sock, self.db, self.workdir = url, sock, db, workdir
         self.kept: dict[str, dict[str, Any]] = {}
         self._running: list[subprocess.Popen[bytes]] = []
+        self._logs: dict[int, Path] = {}
 
     def simulate(self, *extra: str) -> subprocess.Popen[bytes]:
-        sim = subprocess.Popen(
-            [*SIMULATE, "--db", str(self.db), *extra],
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            env=env(CC_DAEMON_STATUS__PATH=str(self.sock)), cwd=self.workdir,
-        )  # fmt: skip
+        """A simulated survey; what it says goes to a log beside the journal."""
+        log = self.workdir / f"simulate-{len(self._running) + 1}.log"
+        with log.open("wb") as out:
+            sim = subprocess.Popen(
+                [*SIMULATE, "--db", str(self.db), *extra],
+                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                env=env(CC_DAEMON_STATUS__PATH=str(self.sock), PYTHONFAULTHANDLER="1"),
+                cwd=self.workdir,
+            )  # fmt: skip
         self._running.append(sim)
+        self._logs[sim.pid] = log
         return sim
+
+    def ends(self, sim: subprocess.Popen[bytes], within_s: float) -> None:
+        """Wait for a survey to end. One that does not is made to dump its threads' stacks
+        (faulthandler, on SIGABRT), and the test fails with the end of what it said."""
+        try:
+            sim.wait(within_s)
+        except subprocess.TimeoutExpired:
+            sim.send_signal(signal.SIGABRT)
+            sim.wait(10)
+            said = self._logs[sim.pid].read_text(errors="replace")
+            raise AssertionError(
+                f"the simulated survey had not ended after {within_s:.0f} s; it said:\n"
+                + said[-20000:]
+            ) from None
 
     def status(self) -> dict[str, Any]:
         return get_json(self.url + "api/status")
@@ -246,7 +267,7 @@ def run_the_day(workdir: Path, visit: Callable[[Day, str, Any], None]) -> None:
             browser.get(url)
             visit(day, "casting-live", browser)
             day.keep("idle", idle_after_a_cast)
-            first.wait(DEADLINE_S * 3)
+            day.ends(first, DEADLINE_S * 3)
             for state in ("idle", "casting"):
                 with day.replay(state):
                     browser.get(url)
@@ -255,7 +276,7 @@ def run_the_day(workdir: Path, visit: Callable[[Day, str, Any], None]) -> None:
             second = day.simulate("--winch-fail-home", "--stations", "2")
             day.keep("stranded", stranded)
             visit(day, "stranded-live", browser)
-            second.wait(DEADLINE_S * 3)
+            day.ends(second, DEADLINE_S * 3)
             visit(day, "gone-live", browser)  # the real daemon stopped: exit 130
             with day.replay("stranded"):
                 browser.get(url)

@@ -1,5 +1,5 @@
-"""What every test leaves behind, checked after each one: no process still running,
-no object whose finaliser warns (an unclosed file, a socket, a subprocess never
+"""What every test leaves behind, checked after each one: no process or thread still
+running, no object whose finaliser warns (an unclosed file, a socket, a subprocess never
 waited for), and the signal dispositions every test starts from.
 
 The suite's `conftest.py` makes both checks autouse fixtures, set up before any
@@ -14,6 +14,8 @@ from __future__ import annotations
 import gc
 import os
 import signal
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -63,10 +65,27 @@ def running_children() -> dict[int, str]:
     return found
 
 
+# A thread the test started is given this long to end after the test has (a writer
+# draining its last rows, an executor's worker): only a hang outlasts it.
+THREAD_END_S = 10.0
+
+
+def threads_left(before: set[int]) -> list[str]:
+    """The threads started since `before` (idents) still running after THREAD_END_S."""
+    deadline = time.monotonic() + THREAD_END_S
+    left = [t for t in threading.enumerate() if t.ident not in before]
+    for thread in left:
+        thread.join(max(0.0, deadline - time.monotonic()))
+    return [thread.name for thread in left if thread.is_alive()]
+
+
 def no_leaks() -> Iterator[None]:
-    """Fail the test that leaves a process running; collect garbage at its end so
-    that an unclosed file, socket or subprocess warns in the test that leaked it."""
+    """Fail the test that leaves a process or a thread running (a journal's writer
+    thread holds its SQLite files open: Python 3.11 never warns about those); collect
+    garbage at its end so that an unclosed file, socket or subprocess warns in the
+    test that leaked it."""
     before = set(running_children())
+    threads = {thread.ident for thread in threading.enumerate() if thread.ident is not None}
     yield
     # Only what was allocated since the last test's end is scanned: what survived a
     # collection before is frozen (the imported libraries alone are about a million
@@ -83,3 +102,5 @@ def no_leaks() -> Iterator[None]:
         except (ProcessLookupError, ChildProcessError):
             pass
     assert not leaked, f"the test left processes running (killed now): {leaked}"
+    still = threads_left(threads)
+    assert not still, f"the test left threads running: {still}"

@@ -16,6 +16,8 @@ CONFTEST = """
 import pytest
 from tests import hygiene
 
+hygiene.THREAD_END_S = 1.0  # the leaky thread below never ends: no need to wait long
+
 @pytest.fixture(autouse=True)
 def _no_leaks():
     yield from hygiene.no_leaks()
@@ -29,6 +31,7 @@ LEAKY = """
 import signal
 import subprocess
 import sys
+import threading
 
 class Cycle:
     def __init__(self, path):
@@ -46,6 +49,12 @@ def test_leaves_a_file_open_in_a_cycle(tmp_path):
     Cycle(tmp_path / "f")
 
 def test_after_the_file_is_clean():
+    pass
+
+def test_leaves_a_thread_running():
+    threading.Thread(target=threading.Event().wait, name="forever", daemon=True).start()
+
+def test_after_the_thread_is_clean():
     pass
 
 def test_sigint_is_a_keyboard_interrupt_as_at_a_terminal():
@@ -85,9 +94,12 @@ def test_a_leak_fails_the_test_that_made_it_and_only_that_one(tmp_path: Path) ->
     assert "left processes running (killed now)" in out
     assert "ERROR test_leaky.py::test_leaves_a_file_open_in_a_cycle" in out
     assert "ResourceWarning: unclosed file" in out
+    assert "ERROR test_leaky.py::test_leaves_a_thread_running" in out
+    assert "the test left threads running: ['forever']" in out
     for clean in (
         "test_after_the_process_is_clean",
         "test_after_the_file_is_clean",
+        "test_after_the_thread_is_clean",
         "test_sigint_is_a_keyboard_interrupt_as_at_a_terminal",
     ):
         assert f"PASSED test_leaky.py::{clean}" in out, out

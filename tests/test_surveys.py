@@ -45,7 +45,9 @@ def two_surveys(tmp_path: Path) -> Path:
     clock = FakeClock()
     _run(db, clock, 3, lat_e7=404506308, simulated=True)  # casts 1-3, survey 1
     # A start that failed: a session with nothing in it is no survey.
-    Journal(db, monotonic=clock.monotonic, wall=clock.wall).open()
+    failed = Journal(db, monotonic=clock.monotonic, wall=clock.wall)
+    failed.open()
+    failed.close()
     _run(db, clock, 2, lat_e7=404606308, simulated=False)  # casts 4-5
     return db
 
