@@ -87,16 +87,18 @@ async def test_failed_start_up_homing_refuses_every_cast_and_reports_the_fault(
         assert (rig.winch.status().fault or "").startswith("homing failed: ")
         moved_at_start = rig.drum.max_line_seen
         await boat.port.send(station())
+        # The fault, to the autopilot: at once, then every period, and nothing else. The
+        # frames are counted, not timed: a loaded machine may deliver them late.
         received = []
-        deadline = time.monotonic() + 3.5
-        while (left := deadline - time.monotonic()) > 0:
+        deadline = time.monotonic() + 60  # only a hang reaches it
+        while sum(isinstance(m, FaultReport) for m in received) < 3:
+            left = deadline - time.monotonic()
+            assert left > 0, received
             got = await boat.port.receive(left)
             if got is not None:
                 received.append(got.message)
         assert isinstance(received[0], Ack)
         assert not any(isinstance(m, Finished) for m in received)
-        reports = [m for m in received if isinstance(m, FaultReport)]
-        assert len(reports) >= 3  # at once, then every period: the fault, to the autopilot
         assert not any(isinstance(m, DepthReport) for m in received)
         assert rig.drum.motor() == (0, 0.0)
         assert rig.drum.max_line_seen == moved_at_start  # never paid out an inch
@@ -125,7 +127,7 @@ async def test_winch_home_beside_the_daemon_hauls_in_past_the_witnesses_fault(
         ok, message = boat.daemon.haul_home("test", "operator request")
         assert ok, message
         finished = None
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 60  # only a hang reaches it
         while finished is None and (left := deadline - time.monotonic()) > 0:
             got = await boat.port.receive(left)
             if got is not None and isinstance(got.message, Finished):

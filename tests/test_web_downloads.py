@@ -41,13 +41,10 @@ def long_track(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return db
 
 
-@pytest.fixture(scope="module")
-def many_samples(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """About 65,000 depth samples in 80 measured casts: a CSV of 7.5 MB."""
-    db = webkit.make_journal(tmp_path_factory.mktemp("web") / "samples.db")
-    webkit.lengthen(db, 40, fixes=False)
+def _samples(db: Path, copies: int) -> Path:
+    """The first 6,500 samples of `db`, `copies` more times, a millisecond apart."""
     with contextlib.closing(sqlite3.connect(db)) as conn, conn:
-        for k in range(1, 15):  # each cast's samples, 14 more times, a millisecond apart
+        for k in range(1, copies + 1):
             conn.execute(
                 "INSERT INTO samples (cast_id, mono_s, wall_s, clock_synced, depth_m, phase)"
                 " SELECT cast_id, mono_s + ?, wall_s + ?, clock_synced, depth_m, phase"
@@ -55,6 +52,24 @@ def many_samples(tmp_path_factory: pytest.TempPathFactory) -> Path:
                 (k / 1000, k / 1000),
             )
     return db
+
+
+@pytest.fixture(scope="module")
+def many_samples(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """About 65,000 depth samples in 80 measured casts: a CSV of 7.5 MB."""
+    db = webkit.make_journal(tmp_path_factory.mktemp("web") / "samples.db")
+    webkit.lengthen(db, 40, fixes=False)
+    return _samples(db, 14)
+
+
+@pytest.fixture
+def more_samples(tmp_path: Path) -> Path:
+    """About 400,000 depth samples: a NetCDF of about 10 MB, more than twice what the
+    kernel may hold on the page's side of one connection (its send buffer grows to
+    net.ipv4.tcp_wmem's largest, 4 MB, whatever the client's window)."""
+    db = webkit.make_journal(tmp_path / "samples.db")
+    webkit.lengthen(db, 40, fixes=False)
+    return _samples(db, 60)
 
 
 @contextlib.asynccontextmanager
@@ -215,14 +230,14 @@ def _slow_reader(port: int) -> Iterator[socket.socket]:
 
 @pytest.mark.timeout(120)
 def test_a_stop_in_the_middle_of_a_netcdf_download_removes_its_temporary_file(
-    many_samples: Path, tmp_path: Path
+    more_samples: Path, tmp_path: Path
 ) -> None:
     pytest.importorskip("netCDF4")
     temporary = tmp_path / "tmp"
     temporary.mkdir()
     environ = {"TMPDIR": str(temporary)}
     with (
-        WebProcess(many_samples, tmp_path / "none.sock", env=environ) as web,
+        WebProcess(more_samples, tmp_path / "none.sock", env=environ) as web,
         _slow_reader(web.port) as client,
     ):
         client.sendall(
@@ -230,7 +245,8 @@ def test_a_stop_in_the_middle_of_a_netcdf_download_removes_its_temporary_file(
         )
         assert client.recv(12) == b"HTTP/1.1 200"  # under way; then read no more
         # The whole file is made before its first byte is sent, and a reader whose
-        # window is 4 kB holds the rest of it on the page's side: the file is there.
+        # window is 4 kB holds the rest of it on the page's side (a file larger than
+        # the kernel's buffers): the file is there.
         assert any(temporary.iterdir())
         web.proc.terminate()
         assert web.proc.wait(30) == 0
