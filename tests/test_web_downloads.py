@@ -216,8 +216,9 @@ async def test_netcdfs_temporary_file_is_removed_however_the_download_ends(
 
 @contextlib.contextmanager
 def _slow_reader(port: int) -> Iterator[socket.socket]:
-    """A client whose receive window is small (4 kB, set before it connects), so the
-    page cannot push a file of megabytes into the kernel's buffers and finish it."""
+    """A client whose receive window is small (4 kB, set before it connects). The
+    kernel still lets the page's send buffer grow to 4 MB (net.ipv4.tcp_wmem): only a
+    larger file stays partly unsent on the page's side."""
     client = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     client.settimeout(30)
