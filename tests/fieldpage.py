@@ -159,7 +159,8 @@ class Day:
             sim = subprocess.Popen(
                 [*SIMULATE, "--db", str(self.db), *extra],
                 stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                env=env(CC_DAEMON_STATUS__PATH=str(self.sock), PYTHONFAULTHANDLER="1"),
+                env=env(CC_DAEMON_STATUS__PATH=str(self.sock), PYTHONFAULTHANDLER="1",
+                        PYTHONUNBUFFERED="1"),
                 cwd=self.workdir,
             )  # fmt: skip
         self._running.append(sim)

@@ -37,6 +37,7 @@ from cc_daemon.sim.pty import PtyPair
 from cc_daemon.store import Journal, JournalReader
 from tests.daemonkit import FAST_CAST, merge, station
 from tests.gpiokit import GpioRig, enable_history, gpio_rig
+from tests.waitkit import until
 
 
 def _settings(tmp_path: Path, port: Path) -> Settings:
@@ -325,7 +326,7 @@ async def test_a_stuck_daemon_loop_stops_the_motor_and_the_fault_is_journaled(
 ) -> None:
     with PtyPair(tmp_path / "tty") as pty:
         settings = _settings(tmp_path, pty.path)
-        gpio = {"pin_factory": "mock", "loop_watchdog_s": 0.3, "line_speed_m_s": 2.0}
+        gpio = {"pin_factory": "mock", "loop_watchdog_s": 0.3, "line_speed_m_s": 0.5}
         settings = Settings.model_validate(merge(settings.model_dump(), {"winch": {"gpio": gpio}}))
         # The daemon builds the mock winch; the drum behind it is the simulator's, handed in.
         daemon = Daemon(settings, simulators=SIMULATORS)
@@ -333,10 +334,16 @@ async def test_a_stuck_daemon_loop_stops_the_motor_and_the_fault_is_journaled(
         task = asyncio.create_task(daemon.run())
         await asyncio.wait_for(daemon.ready.wait(), 30)
         await port.send(station())
-        while (got := await port.receive(5)) is not None:
-            if isinstance(got.message, DepthReport) and got.message.depth_mm > 500:
-                break
-        time.sleep(0.8)  # noqa: ASYNC251 - the daemon's loop is stuck, the motor runs on
+        # The loop stuck early in a descent of about 6 s, while the motor surely runs: a
+        # stop at the target (on the drum's thread) is seconds away, the watchdog's trip
+        # 0.3 s. Seen by the daemon's own status, not after a guessed time.
+        await until(
+            lambda: (
+                daemon.snapshot().phase == "descending" and daemon.snapshot().probe_depth_m >= 0.2
+            ),
+            what="the descent under way",
+        )
+        time.sleep(2.0)  # noqa: ASYNC251 - the daemon's loop is stuck, the motor runs on
         frames = []
         while (got := await port.receive(10)) is not None:
             frames.append(got.message)
