@@ -3,6 +3,7 @@ import-linter's contracts, and these checks that the contracts cannot express.""
 
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
 from pathlib import Path
@@ -104,3 +105,18 @@ def test_the_contracts_hold() -> None:
     )
     assert result.returncode == 0, result.stdout[-3000:]
     assert "0 broken" in result.stdout
+
+
+def test_no_wait_for_that_could_drop_a_cancel() -> None:
+    """On Python 3.11, `asyncio.wait_for` returns, dropping the cancel, when what it
+    waits for completes in the same turn of the loop as the cancel: a duty that then
+    goes on keeps the daemon from ever stopping (the sonde's did). `asyncio.timeout`
+    keeps the cancel. Only a wait already inside a cancel's handling, which raises the
+    cancel itself afterwards, may use it."""
+    allowed = {"drivers/link.py"}
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Attribute) and node.attr == "wait_for":
+                found.append(f"{path.relative_to(PACKAGE)}:{node.lineno}")
+    assert sorted({f.split(":")[0] for f in found} - allowed) == [], found

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import struct
 import time
 from collections.abc import Iterator
@@ -20,7 +21,9 @@ from cc_daemon.drivers.sonde.reader import (
     TIMEOUT,
     SondeReader,
 )
+from cc_daemon.sim.pty import PtyPair
 from cc_daemon.sim.sonde import SimulatedSonde
+from tests.waitkit import until
 
 # Values whose float bit patterns are easy to recognise on the wire.
 KNOWN = {
@@ -208,3 +211,34 @@ async def test_the_october_2025_map_by_protocol_address(tmp_path: Path) -> None:
         assert sim.requests >= 8
     assert first.status == second.status == OK
     assert second.values == {n: float(i) + 0.5 for i, n in enumerate(names)}
+
+
+def _bytes_waiting(fd: int) -> bytes:
+    try:
+        return os.read(fd, 256)
+    except BlockingIOError:
+        return b""
+
+
+async def test_a_cancel_that_meets_a_reply_is_not_lost(tmp_path: Path) -> None:
+    """A daemon stopping as the sonde's reply comes in: the reader's wait is cancelled in
+    the very turn of the loop in which the reply was noticed. Python 3.11's
+    asyncio.wait_for returned the reply then and dropped the cancel, so the sonde's duty
+    sampled on for ever and the daemon never stopped (seen under load: a simulation
+    still "shutting down" 140 s later)."""
+    with PtyPair(tmp_path / "ttySONDE") as pty:
+        reader = SondeReader(settings(pty.path))
+        task = asyncio.create_task(reader.read())
+        try:
+            # The request written: the reader waits for its reply from here on.
+            await until(lambda: _bytes_waiting(pty.master_fd), what="the request on the wire")
+            port = reader._port  # what the reader waits on: its reply's bytes noticed
+            assert port is not None
+            port.arrived.set()
+            task.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await task
+        finally:
+            if not task.done():
+                task.cancel()
+            await reader.close()

@@ -197,9 +197,13 @@ async def _send(
     half-way (the client then sees a broken download, never a truncated file)."""
     try:
         if first is not None:
-            await asyncio.wait_for(response.write(first), stall_s)
+            # asyncio.timeout, not wait_for: on Python 3.11 wait_for drops a cancel (the
+            # page stopping) that meets a write completing (cc_daemon/drivers/sonde/reader.py).
+            async with asyncio.timeout(stall_s):
+                await response.write(first)
             async for chunk in chunks:
-                await asyncio.wait_for(response.write(chunk), stall_s)
+                async with asyncio.timeout(stall_s):
+                    await response.write(chunk)
         await response.write_eof()
         return
     except ConnectionError:

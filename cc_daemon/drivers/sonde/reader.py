@@ -402,8 +402,12 @@ class SondeReader:
             left = end - loop.time()
             if left <= 0:
                 break
+            # Not asyncio.wait_for: on Python 3.11 it returns, swallowing a cancel, when
+            # what it waits for completes in the same turn of the loop (a reply arriving
+            # as the daemon stops), and the sonde's duty then sampled on for ever.
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(port.arrived.wait(), left)
+                async with asyncio.timeout(left):
+                    await port.arrived.wait()
         if parser.pending or parser.dropped:
             # Bytes came: the sonde answered, garbled. Its late answer is not owed.
             n = parser.pending + parser.dropped
