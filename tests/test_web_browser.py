@@ -16,6 +16,7 @@ import pytest
 
 from tests import browserkit, webkit
 from tests.fieldpage import (
+    SPILLS_JS,
     TEXT_JS,
     WIDTHS,
     Day,
@@ -231,9 +232,11 @@ def test_any_fault_key_raises_the_banner_and_unknown_sections_are_shown(tmp_path
                 "p.style = 'width:5em;overflow-wrap:anywhere'; document.body.append(p)"
             )
             assert look(browser)["broken"]
-            # ...and text running out of its card.
-            js(
+            # ...and text running out of its card: added and looked for in one script, as the
+            # page redraws its cards at each status it reads.
+            spilt = js(
                 "const s = document.createElement('span'); s.className = 'chunk';"
-                "s.textContent = 'spilt '.repeat(60); document.querySelector('.card dd').append(s)"
+                "s.textContent = 'spilt '.repeat(60); document.querySelector('.card dd').append(s);"
+                + SPILLS_JS
             )
-            assert look(browser)["spills"]
+            assert spilt
