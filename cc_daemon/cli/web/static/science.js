@@ -65,7 +65,7 @@ function bedWords(science) {
   const levels = bed.contours.map((c) => c.depth_m).sort((a, b) => a - b);
   const every = levels.length > 1 ? ` contours every ${metres(levels[1] - levels[0], 1)};` : "";
   const trust = typeof f.cv_rmse_m === "number"
-    ? `within ${metres(f.cv_rmse_m)} (cross-validated RMSE, ${plural(f.cv_predicted, "held-out block")})`
+    ? `within about ${metres(f.cv_rmse_m)} (an estimate: cross-validated RMSE, ${plural(f.cv_predicted, "held-out block")})`
     : "a sketch: too few lines to estimate its accuracy";
   return `Lake floor from ${plural(f.soundings.kept, "sounding")} (${madeWords(science)}):`
     + ` deepest ${metres(f.max_depth_m, 1)};${every} ${trust}.`;
