@@ -41,9 +41,9 @@ def _open(path: Path) -> JournalReader:
     return JournalReader(path)
 
 
-def _choose(reader: JournalReader, survey: int) -> None:
+def _choose(reader: JournalReader, survey: int) -> SurveyRecord | None:
     try:
-        reader.select_survey(survey)
+        return reader.select_survey(survey)
     except StoreError as exc:
         raise NotFound(str(exc)) from None
 
@@ -51,10 +51,7 @@ def _choose(reader: JournalReader, survey: int) -> None:
 def undamaged_survey(reader: JournalReader, survey: int) -> SurveyRecord | None:
     """Narrow `reader` to `survey` (NotFound if there is none) and refuse a damaged
     journal (StoreError, its damage in one line) before anything is made from it."""
-    try:
-        chosen = reader.select_survey(survey)
-    except StoreError as exc:
-        raise NotFound(str(exc)) from None
+    chosen = _choose(reader, survey)
     damage = reader.damage_report()
     if damage is not None:
         raise StoreError(damage)
